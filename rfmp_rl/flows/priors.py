@@ -135,29 +135,32 @@ class WrappedGaussianPrior(Prior):
         if scale <= 0:
             raise ValueError(f"WrappedGaussianPrior: scale must be > 0, got {scale}")
         self.manifold, self.noise_dim, self.scale = manifold, manifold.dim, float(scale)
-        base_t = manifold.origin() if base is None else torch.as_tensor(base, dtype=torch.float32)
+        if base is None:
+            base_t = manifold.origin(dtype=torch.float64)
+        else:
+            base_t = torch.as_tensor(base).to(torch.float64)
         if base_t.shape != (manifold.dim,):
             raise ValueError(
                 f"WrappedGaussianPrior: base must have shape ({manifold.dim},), "
                 f"got {tuple(base_t.shape)}"
             )
-        self.base = manifold.projx(base_t)
+        self.base_raw = base_t  # as given; the spec stores it, so a rebuilt prior is identical
+        self.base = manifold.projx(base_t)  # float64, cast to the noise's dtype when sampling
 
     def from_noise(self, eps: torch.Tensor) -> torch.Tensor:
         base = self.base.to(dtype=eps.dtype, device=eps.device).expand_as(eps)
         return self.manifold.expmap(base, self.scale * self.manifold.proju(base, eps))
 
     def mode(self, *shape, dtype=None, device=None) -> torch.Tensor:
-        return (
-            self.base.to(dtype=dtype or self.base.dtype, device=device).expand(*shape, -1).clone()
-        )
+        base = self.base.to(dtype=dtype or torch.get_default_dtype(), device=device)
+        return base.expand(*shape, -1).clone()
 
     def spec(self) -> dict[str, Any]:
         return {
             "type": "wrapped_gaussian",
             "manifold": self.manifold.spec(),
             "scale": self.scale,
-            "base": self.base.tolist(),
+            "base": self.base_raw.tolist(),
         }
 
 
