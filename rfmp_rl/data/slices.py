@@ -1,0 +1,73 @@
+"""Turn trajectory slices from a TorchRL `SliceSampler` into RFMP training samples.
+
+Index convention (used throughout `rfmp_rl.data`): a demonstration step ``i`` stores the
+observation ``o_i`` and the action ``a_i`` executed after observing it. For a reference step
+``r`` (the paper's ``s - 1``), a training sample is the observation window ``[o_{r-1}, o_r]``
+(context, reference; T_o = 2) and the chunk ``[a_r, ..., a_{r + T_p - 1}]`` — at run time the
+latest observation ``o_r`` yields the chunk whose first action is executed now.
+"""
+
+from __future__ import annotations
+
+import torch
+from tensordict import TensorDict, TensorDictBase
+from tensordict.utils import NestedKey
+from torchrl.envs.transforms import Transform
+
+from rfmp_rl import keys
+
+__all__ = ["SlicesToChunks"]
+
+
+class SlicesToChunks(Transform):
+    """``(B * (T_p + 1))`` trajectory slices -> ``(B,)`` training samples.
+
+    Apply it to batches of a ``TensorDictReplayBuffer`` with
+    ``SliceSampler(slice_len=T_p + 1, ...)``: ``to_chunks(rb.sample())``. (It changes the batch
+    size, so it cannot sit inside a ``TensorDictReplayBuffer``, which writes the sampled indices
+    back into the batch after its transforms.) Each slice ``[o/a_{r-1}, ..., a_{r+T_p-1}]``
+    becomes ``observation (B, 2, D_obs)`` = ``[o_{r-1}, o_r]``, ``action (B, T_p, D)`` and
+    ``action_is_pad (B, T_p)`` (all False: strict slices never cross an episode end).
+
+    Args:
+        horizon: T_p.
+        observation_keys: keys stacked into windows (each ``(..., D)`` -> ``(B, 2, D)``).
+        action_key: the action entry.
+
+    Example:
+        >>> from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
+        >>> data = TensorDict({"observation": torch.randn(40, 3), "action": torch.randn(40, 2),
+        ...                    "episode": torch.arange(40) // 20}, [40])
+        >>> rb = TensorDictReplayBuffer(storage=LazyTensorStorage(40), batch_size=5 * 5,
+        ...     sampler=SliceSampler(slice_len=5, traj_key="episode", strict_length=True))
+        >>> _ = rb.extend(data)
+        >>> SlicesToChunks(horizon=4)(rb.sample())["action"].shape
+        torch.Size([5, 4, 2])
+    """
+
+    def __init__(
+        self,
+        horizon: int,
+        observation_keys: list[NestedKey] | None = None,
+        action_key: NestedKey = keys.ACTION,
+    ) -> None:
+        super().__init__()
+        self.horizon = int(horizon)
+        self.observation_keys = list(observation_keys or [keys.OBSERVATION])
+        self.action_key = action_key
+
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        length = self.horizon + 1
+        if tensordict.numel() % length:
+            raise ValueError(
+                f"SlicesToChunks: a batch of {tensordict.numel()} steps is not a whole number of "
+                f"slices of length T_p + 1 = {length}; set SliceSampler(slice_len={length})"
+            )
+        slices = tensordict.reshape(-1, length)  # (B, T_p + 1)
+        out = TensorDict({}, batch_size=slices.batch_size[:1])
+        for key in self.observation_keys:
+            out.set(key, slices.get(key)[:, :2])  # (B, 2, D): [o_{r-1}, o_r]
+        action = slices.get(self.action_key)[:, 1:]  # (B, T_p, D): a_r .. a_{r+T_p-1}
+        out.set(self.action_key, action)
+        out.set(keys.ACTION_IS_PAD, torch.zeros(action.shape[:2], dtype=torch.bool))
+        return out

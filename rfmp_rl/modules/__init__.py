@@ -1,0 +1,25 @@
+"""Normalisers, EMA, the policy networks and their TensorDict modules."""
+
+from rfmp_rl.modules.ema import EMA
+from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
+from rfmp_rl.modules.policy_model import (
+    DiffusionModel,
+    FlowModel,
+    ModelConfig,
+    PolicyModel,
+    build_model,
+)
+from rfmp_rl.modules.tensordict_modules import FlowPolicy, VectorField
+
+__all__ = [
+    "EMA",
+    "Normalizer",
+    "euclidean_mask",
+    "ModelConfig",
+    "PolicyModel",
+    "FlowModel",
+    "DiffusionModel",
+    "build_model",
+    "VectorField",
+    "FlowPolicy",
+]

@@ -1,0 +1,182 @@
+"""TensorDict-facing modules: the vector field and the acting policy.
+
+Both read and write by key, so they compose with TorchRL envs, collectors, replay buffers and
+`MultiStepActorWrapper`; the wrapped `FlowModel` / `DiffusionModel` only ever sees tensors.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.nn import TensorDictModule, TensorDictModuleBase
+from tensordict.utils import NestedKey
+from torch import nn
+from torchrl.envs.utils import ExplorationType, exploration_type
+
+from rfmp_rl import keys
+from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
+
+__all__ = ["VectorField", "FlowPolicy"]
+
+
+class _VectorFieldAdapter(nn.Module):
+    def __init__(self, model: FlowModel, n_cameras: int) -> None:
+        super().__init__()
+        self.model, self.n_cameras = model, n_cameras
+
+    def forward(self, *tensors: torch.Tensor):
+        model = self.model
+        obs = tensors[0] if model.cfg.obs_dim > 0 else None
+        offset = 1 if model.cfg.obs_dim > 0 else 0
+        images = dict(zip(model.cameras, tensors[offset : offset + self.n_cameras], strict=True))
+        x, time = tensors[-2], tensors[-1]
+        cond = model.encode(obs, images or None)
+        return model.velocity(x, time, cond)
+
+
+class VectorField(TensorDictModule):
+    """The learned field v(x, t | o) as a `TensorDictModule`.
+
+    Reads the observation window (and camera windows), the flat flow state and the time (t for
+    RFMP, tau for SRFMP); writes the velocity (and ``velocity_tau`` for SRFMP).
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> from rfmp_rl.modules import ModelConfig, build_model
+        >>> cfg = ModelConfig("rfmp", "S2", obs_dim=3, horizon=4, down_dims=[32, 64])
+        >>> model = build_model(cfg)
+        >>> vf = VectorField(model)
+        >>> td = TensorDict({"observation": torch.randn(5, 2, 3),
+        ...                  "x_t": model.chunk.random_base(5), "time": torch.rand(5, 1)}, [5])
+        >>> vf(td)["velocity"].shape
+        torch.Size([5, 12])
+    """
+
+    def __init__(
+        self,
+        model: FlowModel,
+        *,
+        observation_key: NestedKey = keys.OBSERVATION,
+        camera_keys: Mapping[str, NestedKey] | None = None,
+        state_key: NestedKey = "x_t",
+        time_key: NestedKey = "time",
+        velocity_key: NestedKey = "velocity",
+        velocity_tau_key: NestedKey = "velocity_tau",
+    ) -> None:
+        camera_keys = dict(camera_keys or {name: name for name in model.cameras})
+        in_keys = [observation_key] if model.cfg.obs_dim > 0 else []
+        in_keys += [camera_keys[name] for name in model.cameras]
+        in_keys += [state_key, time_key]
+        out_keys = [velocity_key, velocity_tau_key] if model.stable else [velocity_key]
+        super().__init__(
+            _VectorFieldAdapter(model, len(model.cameras)), in_keys=in_keys, out_keys=out_keys
+        )
+
+
+class FlowPolicy(TensorDictModuleBase):
+    """Acting policy: observation window in, action chunk ``(..., T_p, D)`` out.
+
+    Samples with a fixed solver budget. Under
+    ``set_exploration_type(ExplorationType.DETERMINISTIC)`` it starts from the prior's mode (a
+    fixed point on the manifold) instead of a random sample, so evaluation is reproducible. If
+    the input holds ``noise_key`` (standard-normal prior noise ``(..., noise_dim)``), that noise
+    is used — the same input an exported ONNX policy takes. Works with `FlowModel` (RFMP,
+    SRFMP) and `DiffusionModel` (DDIM, where ``nfe`` is the number of DDIM steps).
+
+    Wrap it in ``torchrl.modules.MultiStepActorWrapper(policy, n_steps=T_p,
+    replan_interval=T_a)`` to execute T_a actions of each chunk (receding horizon)::
+
+        obs    o^{s-2} o^{s-1}
+        chunk          |a^s ... a^{s+T_a-1} ... a^{s+T_p-1}|
+        executed       |<-------- T_a -------->|  then re-plan
+
+    Args:
+        model: the network (`FlowModel` or `DiffusionModel`).
+        nfe: function evaluations per chunk.
+        method: ODE method (flows only).
+        t_end: end time T of the integration (may exceed 1).
+        schedule: ``"uniform"`` or ``"srfmp"`` (default: SRFMP's for SRFMP).
+        refine_dt: SRFMP refinement step.
+        observation_key, camera_keys, gap_key, action_key, noise_key: TensorDict keys.
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> from rfmp_rl.modules import ModelConfig, build_model
+        >>> cfg = ModelConfig("srfmp", "S2", obs_dim=3, horizon=4, down_dims=[32, 64])
+        >>> model = build_model(cfg)
+        >>> policy = FlowPolicy(model, nfe=1)
+        >>> policy(TensorDict({"observation": torch.randn(5, 2, 3)}, [5]))["action"].shape
+        torch.Size([5, 4, 3])
+    """
+
+    def __init__(
+        self,
+        model: FlowModel | DiffusionModel,
+        *,
+        nfe: int = 1,
+        method: str = "euler",
+        t_end: float = 1.0,
+        schedule: str | None = None,
+        refine_dt: float | None = None,
+        observation_key: NestedKey = keys.OBSERVATION,
+        camera_keys: Mapping[str, NestedKey] | None = None,
+        gap_key: NestedKey = keys.OBS_GAP,
+        action_key: NestedKey = keys.ACTION,
+        noise_key: NestedKey = keys.PRIOR_NOISE,
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.solver_kwargs = {
+            "nfe": int(nfe),
+            "method": method,
+            "t_end": float(t_end),
+            "schedule": schedule,
+            "refine_dt": refine_dt,
+        }
+        if isinstance(model, FlowModel):  # validate the budget now, not mid-rollout
+            from rfmp_rl.solvers import step_sizes
+
+            step_sizes(
+                nfe,
+                method,
+                t_end,
+                schedule or ("srfmp" if model.stable else "uniform"),
+                model.cfg.lambda_x,
+                refine_dt,
+            )
+        else:
+            model.ddim_timesteps(nfe)
+        self.observation_key, self.gap_key = observation_key, gap_key
+        self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
+        self.action_key, self.noise_key = action_key, noise_key
+        in_keys = [observation_key] if model.cfg.obs_dim > 0 else []
+        in_keys += [self.camera_keys[name] for name in model.cameras]
+        self.in_keys = in_keys
+        self.out_keys = [action_key]
+
+    @torch.no_grad()
+    def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
+        model = self.model
+        obs = images = gap = None
+        if model.cfg.obs_dim > 0:
+            obs = tensordict.get(self.observation_key)
+            leading = obs.shape[:-2]
+            obs = obs.reshape(-1, *obs.shape[-2:])  # (B, 2, D_obs)
+        if model.cameras:
+            images = {}
+            for name in model.cameras:
+                img = tensordict.get(self.camera_keys[name])
+                leading = img.shape[:-4]
+                images[name] = img.reshape(-1, *img.shape[-4:])  # (B, 2, C, H, W)
+        if model.cfg.obs_horizon > 2:
+            gap = tensordict.get(self.gap_key).reshape(-1, 1)
+        noise = tensordict.get(self.noise_key, None)
+        if noise is not None:
+            noise = noise.reshape(-1, noise.shape[-1])
+        deterministic = noise is None and exploration_type() == ExplorationType.DETERMINISTIC
+        cond = model.encode(obs, images, gap)
+        action = model.sample(cond, noise, deterministic=deterministic, **self.solver_kwargs)
+        tensordict.set(self.action_key, action.reshape(*leading, *action.shape[-2:]))
+        return tensordict

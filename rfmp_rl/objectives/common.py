@@ -1,0 +1,112 @@
+"""Shared plumbing of the imitation losses: reading batches by key."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+import torch
+from tensordict import TensorDictBase
+from tensordict.utils import NestedKey
+from torchrl.objectives import LossModule
+
+from rfmp_rl import keys
+from rfmp_rl.modules.policy_model import PolicyModel
+
+__all__ = ["ImitationLoss"]
+
+
+class ImitationLoss(LossModule):
+    """Base of `RFMPLoss`, `SRFMPLoss` and `DiffusionPolicyLoss`.
+
+    A batch holds (``B`` = batch size): the observation window ``(B, 2, D_obs)`` =
+    ``[o^c, o^{s-1}]``, camera windows ``(B, 2, C, H, W)``, the gap ``(B, 1)`` when T_o > 2, the
+    action chunk ``(B, T_p, D)`` and ``action_is_pad (B, T_p)`` (True on steps copied past the
+    end of an episode, which do not contribute to the loss).
+    """
+
+    @dataclass
+    class _AcceptedKeys:
+        """Configurable input keys (rename with ``loss.set_keys(...)``; nested keys work).
+
+        Attributes:
+            observation: low-dimensional observation window ``(B, 2, D_obs)``.
+            action: demonstrated action chunk ``(B, T_p, D)``.
+            action_is_pad: padding mask ``(B, T_p)``, True where the step is padding.
+            obs_gap: gap ``s - c`` between reference and context observation (T_o > 2).
+        """
+
+        observation: NestedKey = keys.OBSERVATION
+        action: NestedKey = keys.ACTION
+        action_is_pad: NestedKey = keys.ACTION_IS_PAD
+        obs_gap: NestedKey = keys.OBS_GAP
+
+    default_keys = _AcceptedKeys
+
+    def __init__(
+        self,
+        model: PolicyModel,
+        camera_keys: Mapping[str, NestedKey] | None = None,
+        reduction: str = "mean",
+    ) -> None:
+        super().__init__()
+        self.model = model
+        self.reduction = reduction
+        self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
+        missing = [c for c in model.cameras if c not in self.camera_keys]
+        if missing:
+            raise ValueError(f"camera_keys lacks an entry for cameras {missing}")
+
+    def _forward_value_estimator_keys(self, **kwargs) -> None:
+        pass  # no value estimator
+
+    @property
+    def in_keys(self) -> list[NestedKey]:
+        k = self.tensor_keys
+        out = [k.action, k.action_is_pad]
+        if self.model.cfg.obs_dim > 0:
+            out.append(k.observation)
+        out += [self.camera_keys[c] for c in self.model.cameras]
+        if self.model.cfg.obs_horizon > 2:
+            out.append(k.obs_gap)
+        return out
+
+    @property
+    def out_keys(self) -> list[str]:
+        return [key for key in self._out_keys]
+
+    _out_keys: tuple[str, ...] = ()
+
+    def _require(self, tensordict: TensorDictBase, key: NestedKey) -> torch.Tensor:
+        value = tensordict.get(key, None)
+        if value is None:
+            raise KeyError(
+                f"{type(self).__name__}: the batch has no entry {key!r} (present: "
+                f"{sorted(map(str, tensordict.keys(True, True)))}); rename with loss.set_keys(...)"
+            )
+        return value
+
+    def _read(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Return ``(condition (B, C), normalised flat chunk (B, T_p * D), valid (B, T_p))``."""
+        k, model = self.tensor_keys, self.model
+        obs = self._require(tensordict, k.observation) if model.cfg.obs_dim > 0 else None
+        images = {c: self._require(tensordict, self.camera_keys[c]) for c in model.cameras}
+        gap = self._require(tensordict, k.obs_gap) if model.cfg.obs_horizon > 2 else None
+        action = self._require(tensordict, k.action)
+        expected = (model.horizon, model.action_dim)
+        if action.shape[-2:] != expected:
+            raise ValueError(
+                f"{type(self).__name__}: {k.action!r} must have shape (B, {expected[0]}, "
+                f"{expected[1]}) = (B, T_p, D), got {tuple(action.shape)}"
+            )
+        pad = tensordict.get(k.action_is_pad, None)
+        if pad is None:
+            pad = torch.zeros(action.shape[:-1], dtype=torch.bool, device=action.device)
+        cond = model.encode(obs, images or None, gap)
+        return cond, model.normalize_action(action), ~pad.to(torch.bool)
+
+    def _per_step_sqnorm(self, x: torch.Tensor, err: torch.Tensor) -> torch.Tensor:
+        """Riemannian squared norm of ``err`` at ``x`` per action step: ``(B, T_p)``."""
+        chunk = self.model.chunk
+        sq = chunk.step.inner(chunk.unflatten(x), chunk.unflatten(err), chunk.unflatten(err))
+        return sq.squeeze(-1)
