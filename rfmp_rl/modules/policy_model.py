@@ -62,6 +62,7 @@ class ModelConfig:
     obs_horizon: int = 2  # T_o: context observation drawn from [s - T_o, s - 2]
     obs_dim: int = 0  # low-dimensional observation size per step (0: images only)
     obs_manifold: str | dict | None = None  # e.g. "S2 x S2" keeps sphere parts unnormalised
+    obs_keys: list[list] | None = None  # [[name, dim], ...] concatenated into the obs vector
     cameras: dict[str, list[int]] = field(default_factory=dict)  # name -> [C, H, W]
     crop_shape: list[int] | None = None  # (H, W) crop of every camera
     vision_pool: str = "spatial_softmax"  # or "avg"
@@ -81,6 +82,7 @@ class ModelConfig:
     time_sampling: str = "uniform"  # uniform | tau (SRFMP only)
     num_diffusion_steps: int = 100  # DDIM training steps
     clip_sample: bool = True  # DDIM clips the predicted clean sample to [-1, 1]
+    control_rate_hz: float = 10.0  # rate at which actions are executed (for deployment)
 
     def __post_init__(self) -> None:
         if self.action_steps is None:
@@ -93,6 +95,13 @@ class ModelConfig:
             raise ValueError(
                 f"ModelConfig: need 1 <= action_steps (T_a={self.action_steps}) <= horizon "
                 f"(T_p={self.horizon})"
+            )
+        if self.obs_keys is None:
+            self.obs_keys = [["observation", self.obs_dim]] if self.obs_dim else []
+        if sum(int(d) for _, d in self.obs_keys) != self.obs_dim:
+            raise ValueError(
+                f"ModelConfig.obs_keys {self.obs_keys} add up to "
+                f"{sum(int(d) for _, d in self.obs_keys)} dims, but obs_dim is {self.obs_dim}"
             )
         if self.obs_horizon < 2:
             raise ValueError(f"ModelConfig.obs_horizon (T_o) must be >= 2, got {self.obs_horizon}")

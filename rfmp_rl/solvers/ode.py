@@ -111,6 +111,7 @@ def _step(
         k1 = f(t, x)
         k2 = f(t + 0.5 * dt, manifold.expmap(x, 0.5 * dt * k1))
         return manifold.expmap(x, dt * k2)
+
     # rk4: classical stages in ambient coordinates, each stage point retracted with projx and each
     # slope projected onto the tangent space at its own stage point; fourth order on embedded
     # manifolds (projecting every slope onto T_x instead would cost two orders on curved ones).

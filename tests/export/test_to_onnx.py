@@ -1,0 +1,124 @@
+"""export/to_onnx.py: one ONNX graph for the fixed-NFE inference, with metadata and parity."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from rfmp_rl.checkpoint import save_checkpoint
+from rfmp_rl.onnx_export import InferenceGraph, export_onnx, onnx_metadata
+
+onnx = pytest.importorskip("onnx")
+ort = pytest.importorskip("onnxruntime")
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def fitted(model):
+    gen = torch.Generator().manual_seed(0)
+    chunk = model.chunk.unflatten(model.chunk.random_base(64, generator=gen))
+    model.action_normalizer.fit(chunk * 2 + 1)  # Euclidean parts span [-1, 3]
+    model.obs_normalizer.fit(torch.randn(32, model.cfg.obs_dim, generator=gen) * 4)
+    return model.eval()
+
+
+def test_srfmp_pose_policy_exports_with_metadata_and_matches_pytorch(tmp_path, make_tiny_model):
+    model = fitted(make_tiny_model("srfmp", "R3 x S3 x R1", horizon=8))
+    report = export_onnx(model, tmp_path / "p.onnx", nfe=1)
+    assert report.max_abs_diff <= 1e-4 and report.max_sphere_error <= 1e-5
+    proto = onnx.load(str(tmp_path / "p.onnx"))
+    meta = {p.key: p.value for p in proto.metadata_props}
+    assert meta["rfmp_rl.format"] == "rfmp_rl.onnx/1"
+    assert (meta["algorithm"], meta["nfe"], meta["schedule"]) == ("srfmp", "1", "srfmp")
+    assert (meta["horizon"], meta["action_steps"], meta["obs_horizon"]) == ("8", "4", "2")
+    assert json.loads(meta["action_manifold"])["type"] == "product"
+    low, high = json.loads(meta["action_low"]), json.loads(meta["action_high"])
+    assert low[3:7] == [-1.0] * 4 and high[3:7] == [1.0] * 4  # quaternion coordinates
+    torch.testing.assert_close(torch.tensor(low[:3]), model.action_normalizer.data_min[:3].float())
+    inputs = json.loads(meta["inputs"])
+    assert [i["name"] for i in inputs] == ["observation", "prior_noise"]
+    assert inputs[1]["shape"] == [model.noise_dim]
+    # Dynamic batch and exact reuse of the prior noise: onnxruntime == PyTorch for any batch.
+    session = ort.InferenceSession(str(tmp_path / "p.onnx"), providers=["CPUExecutionProvider"])
+    graph = InferenceGraph(model, nfe=1)
+    for batch in (1, 5):
+        obs, noise = torch.randn(batch, 2, 3) * 4, torch.randn(batch, model.noise_dim)
+        got = session.run(["action"], {"observation": obs.numpy(), "prior_noise": noise.numpy()})
+        with torch.no_grad():
+            expected = graph(obs, noise)
+        np.testing.assert_allclose(got[0], expected.numpy(), atol=1e-4, rtol=0)
+    # Zero noise is the deterministic mode of FlowPolicy.
+    obs = torch.randn(2, 2, 3)
+    zero = session.run(
+        ["action"],
+        {"observation": obs.numpy(), "prior_noise": np.zeros((2, model.noise_dim), np.float32)},
+    )
+    with torch.no_grad():
+        mode = model.sample(model.encode(obs), None, nfe=1, deterministic=True)
+    np.testing.assert_allclose(zero[0], mode.numpy(), atol=1e-4, rtol=0)
+
+
+def test_export_refuses_an_unfitted_policy(make_tiny_model):
+    model = make_tiny_model("rfmp", "S2")
+    with pytest.raises(ValueError, match="never fitted"):
+        onnx_metadata(InferenceGraph(model, nfe=1))
+
+
+def test_parity_failure_is_reported(tmp_path, make_tiny_model):
+    model = fitted(make_tiny_model("ddim", "S2"))
+    with pytest.raises(RuntimeError, match="differs from PyTorch"):
+        export_onnx(model, tmp_path / "d.onnx", nfe=2, atol=-1.0)  # no difference passes < 0
+    assert (tmp_path / "d.onnx").exists()  # written before the check, for inspection
+
+
+def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
+    model = fitted(make_tiny_model("rfmp", "S2", horizon=4))
+    ckpt = save_checkpoint(tmp_path / "ckpt.pt", model)
+    out = tmp_path / "policy.onnx"
+    result = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "export" / "to_onnx.py"),
+            "--checkpoint",
+            str(ckpt),
+            "--nfe",
+            "2",
+            "--horizon",
+            "1.2",
+            "--method",
+            "midpoint",
+            "--out",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert result.returncode == 0, result.stderr
+    assert "max |onnxruntime - torch|" in result.stdout and out.exists()
+    meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
+    assert (meta["method"], meta["t_end"], meta["nfe"]) == ("midpoint", "1.2", "2")
+    bad = subprocess.run(
+        [
+            sys.executable,
+            str(ROOT / "export" / "to_onnx.py"),
+            "--checkpoint",
+            str(ckpt),
+            "--nfe",
+            "3",
+            "--method",
+            "rk4",
+            "--out",
+            str(tmp_path / "x.onnx"),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert bad.returncode != 0 and "NFE=3" in bad.stderr
