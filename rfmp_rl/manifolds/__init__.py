@@ -10,6 +10,7 @@ from rfmp_rl.manifolds.euclidean import Euclidean
 from rfmp_rl.manifolds.product import Horizon, Product
 from rfmp_rl.manifolds.quaternion import canonicalize_quaternion, hemisphere_continuous
 from rfmp_rl.manifolds.sphere import Sphere
+from rfmp_rl.manifolds.stereographic import plane_to_sphere, sphere_to_plane
 
 __all__ = [
     "Manifold",
@@ -23,6 +24,8 @@ __all__ = [
     "hemisphere_continuous",
     "eps_for",
     "safe_norm",
+    "plane_to_sphere",
+    "sphere_to_plane",
 ]
 
 
