@@ -268,6 +268,13 @@ def export_onnx(
         entry.key, entry.value = key, value
     onnx.save_model(proto, str(path))
     onnx.checker.check_model(str(path), full_check=True)
+    for tensor in [*proto.graph.input, *proto.graph.output]:
+        first = tensor.type.tensor_type.shape.dim[0]
+        if not first.dim_param:
+            raise ValueError(
+                f"{path}: the batch axis of {tensor.name!r} was specialised to {first.dim_value} "
+                "during export (a model op depends on the batch size); it must stay dynamic"
+            )
 
     session = ort.InferenceSession(str(path), providers=["CPUExecutionProvider"])
     worst = sphere = 0.0

@@ -95,7 +95,7 @@ class ObservationEncoder(nn.Module):
                 for name in self.vision.cameras
             }
             feats = self.vision(both)  # (2B, F)
-            feat_ref, feat_ctx = feats.chunk(2, dim=0)  # (B, F) each
+            feat_ref, feat_ctx = feats.unflatten(0, (2, -1)).unbind(0)  # (B, F) each
             ref_parts.append(feat_ref)
             ctx_parts.append(feat_ctx)
         parts = ref_parts + ctx_parts

@@ -122,3 +122,23 @@ def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
         timeout=300,
     )
     assert bad.returncode != 0 and "NFE=3" in bad.stderr
+
+
+def test_image_policy_exports_with_a_dynamic_batch(tmp_path):
+    from rfmp_rl.modules import ModelConfig, build_model
+
+    cfg = ModelConfig("srfmp", "S2", obs_dim=2, horizon=4, down_dims=[16, 32],
+                      time_embed_dim=32, tau_hidden_dim=32, cameras={"cam": [3, 32, 32]},
+                      crop_shape=[28, 28], vision_out_dim=16)
+    torch.manual_seed(0)
+    model = build_model(cfg)
+    model.action_normalizer.fit(model.chunk.unflatten(model.chunk.random_base(16)))
+    model.obs_normalizer.fit(torch.randn(16, 2))
+    report = export_onnx(model.eval(), tmp_path / "img.onnx", nfe=1)
+    assert report.max_abs_diff <= 1e-4
+    proto = onnx.load(str(tmp_path / "img.onnx"))
+    names = [i.name for i in proto.graph.input]
+    assert names == ["observation", "cam", "prior_noise"]
+    assert proto.graph.input[1].type.tensor_type.elem_type == onnx.TensorProto.UINT8
+    inputs = json.loads({p.key: p.value for p in proto.metadata_props}["inputs"])
+    assert inputs[1]["image_size"] == [32, 32] and inputs[1]["crop"] == [28, 28]

@@ -1,0 +1,357 @@
+"""The receding-horizon controller: observation history, action queue, safety, timing.
+
+Timing picture (T_p = 16 predicted, T_a = 8 executed per chunk; ``c_k[j]`` is action ``j`` of
+chunk ``k``; each column is one ``step`` call, one control period)::
+
+    synchronous (default): inference inside step, every T_a steps
+      step     0      1     ...  7      8      9     ...  15     16
+      infer    c_0                      c_1                      c_2
+      action   c_0[0] c_0[1] ... c_0[7] c_1[0] c_1[1] ... c_1[7] c_2[0]
+
+    asynchronous: step never waits; a background thread plans while the queue drains
+      step     0      1      ...  7      8      9      ...
+      request  r_0                r_1 (queue at T_p - T_a = 8)
+      action   hold   c_0[1] ... c_0[7] c_0[8] c_1[2] ...   (c_1 arrived 2 steps after r_1,
+                                                             so its first 2 actions are stale)
+
+A chunk requested at step ``s`` is planned from the observation of step ``s``, so its action
+``j`` belongs to step ``s + j``; when it arrives ``k`` steps late the controller starts at
+``c[k]``. The queue runs dry (an ``underrun``: the robot holds) only when inference takes longer
+than ``T_p - T_a`` control periods (or on the first step after `Controller.reset`).
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import queue
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable, Mapping
+from concurrent.futures import Future, wait
+from typing import Any
+
+import numpy as np
+
+from rfmp_deploy.metadata import WINDOW
+from rfmp_deploy.observation import Frame, ObservationError, ObservationProcessor, stack_window
+from rfmp_deploy.policy import Policy
+from rfmp_deploy.safety import Event, guard_action, resolve_safe_action
+
+__all__ = ["Controller"]
+
+logger = logging.getLogger("rfmp_deploy")
+
+
+class _InferenceThread:
+    """One daemon thread running policy calls in order; results come back as futures."""
+
+    def __init__(self, policy: Callable[..., np.ndarray], clock: Callable[[], float]) -> None:
+        self._policy = policy
+        self._clock = clock
+        self._jobs: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._run, name="rfmp-inference", daemon=True)
+        self._thread.start()
+
+    def submit(self, *args: Any) -> Future:
+        future: Future = Future()
+        self._jobs.put((future, args))
+        return future
+
+    def _run(self) -> None:
+        while True:
+            job = self._jobs.get()
+            if job is None:
+                return
+            future, args = job
+            if not future.set_running_or_notify_cancel():
+                continue  # cancelled while queued
+            start = self._clock()
+            try:
+                chunk = self._policy(*args)
+            except BaseException as e:  # handed to the control thread, never lost
+                future.set_exception(e)
+            else:
+                future.set_result((chunk, self._clock() - start))
+
+    def close(self) -> None:
+        self._jobs.put(None)
+
+
+class Controller:
+    """Turns a stream of robot observations into a stream of safe actions, one per step.
+
+    Each `step` takes the robot's latest observation dict (low-dim fields from the model's
+    ``observation_keys``, camera name -> ``H x W x 3`` uint8 RGB frame of any size) and returns
+    one ``(D,)`` float32 action to send. Internally it keeps the previous and the latest
+    observation — the policy's window ``[o^c, o^{s-1}]``, context first; right after
+    construction or `reset` the latest is repeated — predicts chunks of ``T_p`` actions and
+    executes ``T_a`` of each (see the module's timing picture).
+
+    Safety: `step` never raises on bad input. An observation with a missing key or camera, the
+    wrong shape or dtype, or NaN/inf is rejected — the controller records a ``"rejected"``
+    `Event`, drops its queued plan and returns the hold action; the next good observation
+    re-plans. The hold action is the last action executed since `reset`, or ``safe_action``
+    before that. Every executed action has its Euclidean coordinates clipped to
+    ``[action_low, action_high]`` and its sphere components (quaternions) renormalised
+    (``"clamped"`` event when that changed anything). Events are appended to ``events`` and
+    logged on the ``rfmp_deploy`` logger.
+
+    Args:
+        policy: a `Policy`, a path to a ``.onnx`` file, or any object with a ``meta``
+            (`PolicyMeta`) and Policy's ``__call__``.
+        seed: seed of the numpy ``Generator`` that draws the prior noise.
+        deterministic: ``True`` feeds zeros as noise (the policy's deterministic mode),
+            ``False`` draws N(0, I); ``None`` follows the metadata's ``noise.default``
+            (``standard_normal`` for rfmp_rl exports).
+        safe_action: ``(D,)`` action to hold before anything was executed. Default: from the
+            metadata — the midpoint of ``[action_low, action_high]`` for Euclidean coordinates
+            and ``(0, ..., 0, 1)`` for each sphere (the identity quaternion in xyzw order).
+            Required when the limits are unbounded. Check that it is safe for your robot: the
+            midpoint of the demonstrated workspace is not a resting pose.
+        clock: monotonic clock in seconds (event times, inference timing).
+        asynchronous: run inference in a background thread so `step` never waits for it.
+        action_steps: T_a override (default: the metadata's ``action_steps``).
+        control_rate_hz: rate override for the overrun check (default: the metadata's).
+        max_events: keep at most this many events (oldest dropped first).
+
+    Attributes:
+        events: recorded `Event` s, oldest first.
+        event_counts: kind -> number of events since construction (never trimmed).
+        inference_times: recent inference durations in seconds.
+        step_count: number of `step` calls since construction.
+        plan_count: number of chunks put into the action queue since construction.
+
+    Example:
+        >>> controller = Controller("policy.onnx", seed=0)
+        >>> observation = {"eef_pos": np.array([0.1, 0.0, 0.3]),
+        ...                "eef_quat": np.array([0.0, 0.0, 0.0, 1.0]), "gripper": np.array([0.04]),
+        ...                "wrist": np.zeros((480, 640, 3), np.uint8)}
+        >>> actions = [controller.step(observation) for _ in range(10)]
+        >>> actions[0].shape, controller.plan_count    # T_a = 8: planned at steps 0 and 8
+        ((8,), 2)
+        >>> bad = dict(observation, eef_pos=np.array([np.nan, 0.0, 0.3]))
+        >>> held = controller.step(bad)              # no exception: hold the last action
+        >>> bool(np.array_equal(held, actions[-1])), controller.events[-1].kind
+        (True, 'rejected')
+    """
+
+    def __init__(
+        self,
+        policy: Policy | str | os.PathLike[str],
+        seed: int | None = 0,
+        deterministic: bool | None = None,
+        safe_action: np.ndarray | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        asynchronous: bool = False,
+        action_steps: int | None = None,
+        control_rate_hz: float | None = None,
+        max_events: int = 10_000,
+    ) -> None:
+        if isinstance(policy, str | os.PathLike):
+            policy = Policy(policy)
+        self.policy = policy
+        self.meta = meta = policy.meta
+        self.space = meta.action_space
+        self.processor = ObservationProcessor(meta)
+        self.safe_action = resolve_safe_action(self.space, safe_action)
+        self.action_steps = int(action_steps or meta.action_steps)
+        if not 1 <= self.action_steps <= meta.horizon:
+            raise ValueError(f"action_steps must be in [1, T_p={meta.horizon}], "
+                             f"got {self.action_steps}")
+        self.period = 1.0 / float(control_rate_hz or meta.control_rate_hz)
+        self.deterministic = (
+            meta.noise_default == "zeros" if deterministic is None else bool(deterministic)
+        )
+        self.asynchronous = bool(asynchronous)
+        self.clock = clock
+        self.max_events = int(max_events)
+        self.events: list[Event] = []
+        self.event_counts: Counter[str] = Counter()
+        self.inference_times: deque[float] = deque(maxlen=1000)
+        self.step_count = 0
+        self.plan_count = 0
+        self._rng = np.random.default_rng(seed)
+        self._history: deque[Frame] = deque(maxlen=WINDOW)  # [previous, latest]
+        self._queue: deque[np.ndarray] = deque()
+        self._executed = 0  # actions executed from the current chunk (synchronous mode)
+        self._last_action: np.ndarray | None = None
+        self._worker: _InferenceThread | None = None
+        self._pending: tuple[Future, int] | None = None  # (future, step index of the request)
+        self._current = -1
+
+    # ----- public API ----------------------------------------------------------------------
+    def reset(self, seed: int | None = None) -> None:
+        """Start a new episode: forget the history, the queued actions and the last action.
+
+        Args:
+            seed: reseed the noise generator (``None`` continues its stream).
+        """
+        self._drop_plan()
+        self._history.clear()
+        self._last_action = None
+        if seed is not None:
+            self._rng = np.random.default_rng(seed)
+
+    def step(self, observation: Mapping[str, Any]) -> np.ndarray:
+        """One control step: take the latest observation, return the action to send now.
+
+        Args:
+            observation: low-dim key -> ``(dim,)`` numbers and camera name -> ``(H, W, 3)``
+                uint8 RGB frame.
+
+        Returns:
+            ``(D,)`` float32 action in raw units, inside the limits and on the manifold.
+        """
+        self._current = self.step_count
+        self.step_count += 1
+        try:
+            frame = self.processor(observation)
+        except Exception as e:  # ObservationError, or anything else preprocessing ran into
+            reason = str(e) if isinstance(e, ObservationError) else f"preprocessing failed: {e!r}"
+            self._drop_plan()
+            self._record("rejected", f"observation rejected, holding: {reason}")
+            return self.hold_action
+        self._history.append(frame)
+        if self.asynchronous:
+            return self._step_async()
+        return self._step_sync()
+
+    @property
+    def hold_action(self) -> np.ndarray:
+        """What the controller sends when it cannot act: the last executed action, else
+        ``safe_action``."""
+        action = self._last_action if self._last_action is not None else self.safe_action
+        return action.copy()
+
+    @property
+    def queue_size(self) -> int:
+        """Actions waiting in the queue."""
+        return len(self._queue)
+
+    @property
+    def last_inference_time(self) -> float | None:
+        return self.inference_times[-1] if self.inference_times else None
+
+    def wait_inference(self, timeout: float | None = None) -> bool:
+        """Block until the background inference in flight (if any) has finished.
+
+        For start-up (step once, wait, then start the loop, so the robot does not hold while the
+        first chunk is computed) and tests; never call it inside the control loop.
+
+        Returns:
+            ``True`` when no inference is in flight any more, ``False`` on timeout.
+        """
+        if self._pending is None:
+            return True
+        done, _ = wait([self._pending[0]], timeout=timeout)
+        return bool(done)
+
+    def close(self) -> None:
+        """Stop the background inference thread (asynchronous mode)."""
+        self._drop_plan()
+        if self._worker is not None:
+            self._worker.close()
+            self._worker = None
+
+    def __enter__(self) -> Controller:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ----- internals ---------------------------------------------------------------------------
+    def _record(self, kind: str, message: str) -> None:
+        event = Event(self.clock(), self._current, kind, message)
+        self.events.append(event)
+        if len(self.events) > self.max_events:
+            del self.events[: len(self.events) - self.max_events]
+        self.event_counts[kind] += 1
+        level = logging.INFO if kind == "clamped" else logging.WARNING
+        logger.log(level, "step %d: %s: %s", event.step, kind, message)
+
+    def _drop_plan(self) -> None:
+        self._queue.clear()
+        self._executed = 0
+        if self._pending is not None:
+            self._pending[0].cancel()  # no-op when already running; its result is ignored
+            self._pending = None
+
+    def _inputs(self) -> tuple[np.ndarray | None, dict[str, np.ndarray], np.ndarray]:
+        frames = list(self._history)
+        frames = [frames[0]] * (WINDOW - len(frames)) + frames  # first step: [latest, latest]
+        observation, images = stack_window(frames, self.meta)
+        if self.deterministic:
+            noise = np.zeros((1, self.meta.noise_dim), dtype=np.float32)
+        else:
+            noise = self._rng.standard_normal((1, self.meta.noise_dim), dtype=np.float32)
+        return observation, images, noise
+
+    def _execute(self, action: np.ndarray) -> np.ndarray:
+        safe, message = guard_action(self.space, action)
+        if safe is None:
+            self._drop_plan()
+            self._record("invalid_action", f"policy action unusable, holding: {message}")
+            return self.hold_action
+        if message:
+            self._record("clamped", message)
+        self._last_action = safe
+        return safe.copy()
+
+    def _step_sync(self) -> np.ndarray:
+        if not self._queue or self._executed >= self.action_steps:
+            self._queue.clear()
+            inputs = self._inputs()
+            start = self.clock()
+            try:
+                chunk = self.policy(*inputs)[0]  # (T_p, D)
+            except Exception as e:
+                self._record("inference_error", f"inference failed, holding: {e!r}")
+                return self.hold_action
+            elapsed = self.clock() - start
+            self.inference_times.append(elapsed)
+            if elapsed > self.period:
+                self._record("overrun", f"inference took {elapsed * 1e3:.1f} ms, longer than the "
+                                        f"control period {self.period * 1e3:.1f} ms")
+            self._queue.extend(chunk[: self.action_steps])
+            self._executed = 0
+            self.plan_count += 1
+        self._executed += 1
+        return self._execute(self._queue.popleft())
+
+    def _collect(self) -> str | None:
+        """Take a finished chunk from the background thread; returns a note for underruns."""
+        if self._pending is None or not self._pending[0].done():
+            return None
+        future, requested = self._pending
+        self._pending = None
+        error = future.exception()
+        if error is not None:
+            self._record("inference_error", f"background inference failed: {error!r}")
+            return "the last inference failed"
+        chunk, elapsed = future.result()
+        chunk = chunk[0]  # (T_p, D)
+        self.inference_times.append(elapsed)
+        late = self._current - requested
+        self._queue = deque(chunk[late:])
+        self.plan_count += 1
+        if late >= len(chunk):
+            return f"the chunk arrived {late} steps after its request, all {len(chunk)} stale"
+        return None
+
+    def _step_async(self) -> np.ndarray:
+        note = self._collect()
+        if self._queue:
+            action = self._execute(self._queue.popleft())
+        else:
+            if note is None:
+                note = ("no chunk yet since reset" if self._last_action is None
+                        else "inference is slower than the queue drains")
+            self._record("underrun", f"action queue empty, holding ({note})")
+            action = self.hold_action
+        if self._pending is None and len(self._queue) <= self.meta.horizon - self.action_steps:
+            if self._worker is None:
+                self._worker = _InferenceThread(self.policy, self.clock)
+            self._pending = (self._worker.submit(*self._inputs()), self._current)
+        return action

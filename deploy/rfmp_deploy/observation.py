@@ -1,0 +1,203 @@
+"""Checking and preprocessing one robot observation (sensor readings and camera frames).
+
+The robot hands the controller a dict: each low-dimensional field named in the model's
+``observation_keys`` maps to an array of its ``dim`` numbers, each camera name maps to an
+``H x W x 3`` uint8 RGB frame of any size. `ObservationProcessor` validates all of it (missing
+keys, shapes, dtypes, NaN/inf) and produces a `Frame`: the concatenated ``observation`` vector
+and the camera images resized with OpenCV's ``INTER_AREA`` to the training image size, in CHW
+order — exactly what the exported graph expects (it centre-crops by itself).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import Any
+
+import numpy as np
+
+from rfmp_deploy.metadata import PolicyMeta
+
+__all__ = ["Frame", "ObservationError", "ObservationProcessor", "stack_window"]
+
+
+class ObservationError(ValueError):
+    """An observation the controller refuses to act on; the message lists every problem.
+
+    Example:
+        >>> from rfmp_deploy.metadata import example_metadata, parse_metadata
+        >>> try:
+        ...     ObservationProcessor(parse_metadata(example_metadata()))({"gripper": [0.1]})
+        ... except ObservationError as e:
+        ...     print(e)
+        missing key 'eef_pos' (3 value(s)); missing key 'eef_quat' (4 value(s));
+        missing camera 'wrist'
+    """
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One preprocessed time step.
+
+    Attributes:
+        lowdim: ``(D_obs,)`` float32, the fields concatenated in ``observation_keys`` order, or
+            ``None`` when the model has no low-dimensional input.
+        images: camera name -> ``(C, H, W)`` uint8 at the model's image size.
+
+    Example:
+        >>> frame = Frame(np.zeros(3, np.float32), {"wrist": np.zeros((3, 84, 84), np.uint8)})
+        >>> frame.lowdim.shape, frame.images["wrist"].shape
+        ((3,), (3, 84, 84))
+    """
+
+    lowdim: np.ndarray | None
+    images: dict[str, np.ndarray]
+
+
+def _cv2() -> ModuleType:
+    try:
+        import cv2
+    except ImportError as e:  # pragma: no cover - depends on the robot PC
+        raise ImportError(
+            "this policy has cameras, and resizing frames needs OpenCV: "
+            "pip install opencv-python-headless (see deploy/requirements.txt)"
+        ) from e
+    return cv2
+
+
+def _describe(value: Any) -> str:
+    if isinstance(value, np.ndarray):
+        return f"array of shape {value.shape} and dtype {value.dtype}"
+    return type(value).__name__
+
+
+class ObservationProcessor:
+    """Validates observation dicts against a model's metadata and turns them into `Frame` s.
+
+    Low-dim values may be any real integer or floating array (or list) of shape ``(dim,)``
+    (a scalar is accepted for ``dim == 1``); they are cast to float32 and must be finite after
+    the cast. Camera frames must be ``np.ndarray`` uint8 ``(H, W, C)`` with the model's channel
+    count (RGB order; convert OpenCV's BGR captures with ``cv2.cvtColor``); ``(H, W)`` is
+    accepted for single-channel models. Keys the model does not use are ignored.
+
+    Args:
+        meta: the policy's metadata.
+
+    Example:
+        >>> from rfmp_deploy.metadata import example_metadata, parse_metadata
+        >>> process = ObservationProcessor(parse_metadata(example_metadata()))
+        >>> frame = process({"eef_pos": [0.1, 0.2, 0.3], "eef_quat": [0, 0, 0, 1],
+        ...                  "gripper": 0.04, "wrist": np.zeros((480, 640, 3), np.uint8)})
+        >>> frame.lowdim.shape, frame.images["wrist"].shape
+        ((8,), (3, 84, 84))
+        >>> process({"eef_pos": [0.1, float("nan"), 0.3], "eef_quat": [0, 0, 0, 1]})
+        Traceback (most recent call last):
+        ...
+        rfmp_deploy.observation.ObservationError: 'eef_pos': non-finite value(s) ...
+    """
+
+    def __init__(self, meta: PolicyMeta) -> None:
+        self.meta = meta
+        self.fields = meta.observation_keys
+        self.cameras = meta.image_inputs
+        self._cv2 = _cv2() if self.cameras else None
+
+    def __call__(self, observation: Mapping[str, Any]) -> Frame:
+        """Validate and preprocess one observation.
+
+        Raises:
+            ObservationError: listing every missing key, wrong shape or dtype and non-finite
+                value at once.
+        """
+        if not isinstance(observation, Mapping):
+            raise ObservationError(f"observation must be a dict, got {_describe(observation)}")
+        problems: list[str] = []
+        parts = []
+        for f in self.fields:
+            if f.key not in observation:
+                problems.append(f"missing key '{f.key}' ({f.dim} value(s))")
+                continue
+            value = self._lowdim(f.key, f.dim, observation[f.key], problems)
+            if value is not None:
+                parts.append(value)
+        images = {}
+        for spec in self.cameras:
+            if spec.name not in observation:
+                problems.append(f"missing camera '{spec.name}'")
+                continue
+            image = self._image(spec.name, spec.shape[1:], observation[spec.name], problems)
+            if image is not None:
+                images[spec.name] = image
+        if problems:
+            raise ObservationError("; ".join(problems))
+        lowdim = np.concatenate(parts).astype(np.float32) if self.fields else None
+        return Frame(lowdim, images)
+
+    def _lowdim(self, key: str, dim: int, value: Any, problems: list[str]) -> np.ndarray | None:
+        try:
+            array = np.asarray(value)
+        except Exception as e:  # anything unconvertible is a bad reading
+            problems.append(f"'{key}': cannot convert to an array ({e})")
+            return None
+        if array.dtype == np.bool_ or array.dtype.kind not in "iuf":
+            problems.append(f"'{key}': expected real numbers, got dtype {array.dtype}")
+            return None
+        if array.shape != (dim,) and not (dim == 1 and array.shape == ()):
+            problems.append(f"'{key}': expected shape ({dim},), got {array.shape}")
+            return None
+        with np.errstate(over="ignore"):
+            out = array.reshape(dim).astype(np.float32)
+        bad = ~np.isfinite(out)
+        if bad.any():
+            problems.append(f"'{key}': non-finite value(s) at {np.flatnonzero(bad).tolist()} "
+                            f"(NaN, inf or beyond float32)")
+            return None
+        return out
+
+    def _image(
+        self, name: str, chw: Sequence[int], frame: Any, problems: list[str]
+    ) -> np.ndarray | None:
+        c, h, w = chw
+        if not isinstance(frame, np.ndarray):
+            problems.append(f"camera '{name}': expected a uint8 numpy array, got "
+                            f"{_describe(frame)}")
+            return None
+        if frame.dtype != np.uint8:
+            problems.append(f"camera '{name}': expected dtype uint8, got {frame.dtype}")
+            return None
+        if c == 1 and frame.ndim == 2:
+            frame = frame[:, :, None]
+        if frame.ndim != 3 or frame.shape[2] != c or frame.shape[0] < 1 or frame.shape[1] < 1:
+            problems.append(f"camera '{name}': expected an (H, W, {c}) frame, got shape "
+                            f"{frame.shape}")
+            return None
+        if frame.shape[:2] != (h, w):
+            try:
+                frame = self._cv2.resize(
+                    np.ascontiguousarray(frame), (w, h), interpolation=self._cv2.INTER_AREA
+                )
+            except Exception as e:  # cv2.error on frames OpenCV cannot handle
+                problems.append(f"camera '{name}': resizing {frame.shape} failed ({e})")
+                return None
+            frame = frame.reshape(h, w, c)  # OpenCV drops a trailing channel axis of 1
+        return np.ascontiguousarray(frame.transpose(2, 0, 1))
+
+
+def stack_window(
+    frames: Sequence[Frame], meta: PolicyMeta
+) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """The graph's observation inputs from ``T_o`` frames ordered in time (oldest first).
+
+    Returns:
+        ``(observation, images)``: ``(1, T_o, D_obs)`` float32 or ``None``, and camera name ->
+        ``(1, T_o, C, H, W)`` uint8.
+    """
+    observation = None
+    if meta.lowdim_input is not None:
+        observation = np.stack([f.lowdim for f in frames])[None]  # (1, T_o, D_obs)
+    images = {
+        name: np.stack([f.images[name] for f in frames])[None]  # (1, T_o, C, H, W)
+        for name in meta.cameras
+    }
+    return observation, images
