@@ -16,6 +16,7 @@ from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import (
     CatFrames,
+    CatTensors,
     Compose,
     EnvBase,
     InitTracker,
@@ -71,6 +72,8 @@ class LasaSphereEnv(EnvBase):
         goal: the goal point, default the north pole ``(0, 0, 1)``.
         seed: seed of the env's generator; ``None`` draws one from torch's global generator.
         device: torch device of the env.
+        context: optional constant conditioning ``(*B, K)`` or ``(K,)`` (e.g. a one-hot shape
+            id), emitted as the ``context`` observation at every reset and step.
 
     Example:
         >>> env = LasaSphereEnv(torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), batch_size=[2])
@@ -93,8 +96,13 @@ class LasaSphereEnv(EnvBase):
         goal: torch.Tensor | None = None,
         seed: int | None = None,
         device: torch.device | str | None = None,
+        context: torch.Tensor | None = None,
     ) -> None:
         super().__init__(device=device, batch_size=torch.Size(batch_size))
+        if context is not None:
+            context = torch.as_tensor(context, dtype=torch.float32, device=self.device)
+            context = context.expand(*self.batch_size, context.shape[-1]).clone()
+        self.context = context
         start_points = torch.as_tensor(start_points, dtype=torch.float32, device=self.device)
         if start_points.ndim == 1:
             start_points = start_points.unsqueeze(0)
@@ -131,6 +139,10 @@ class LasaSphereEnv(EnvBase):
             shape=batch,
             device=self.device,
         )
+        if self.context is not None:
+            self.observation_spec["context"] = Unbounded(
+                (*batch, self.context.shape[-1]), dtype=torch.float32, device=self.device
+            )
         # `start` is an input of `reset` only; declaring it as state lets it pass TransformedEnv.
         self.state_spec = Composite(
             start=Unbounded((*batch, 3), dtype=torch.float32, device=self.device),
@@ -179,7 +191,7 @@ class LasaSphereEnv(EnvBase):
             start = start.to(device=self.device, dtype=torch.float32)
             x = _S2.projx(start.expand(*shape, 3))
         false = torch.zeros((*shape, 1), dtype=torch.bool, device=self.device)
-        return TensorDict(
+        out = TensorDict(
             {
                 keys.OBSERVATION: x,
                 "start": x.clone(),
@@ -191,6 +203,9 @@ class LasaSphereEnv(EnvBase):
             batch_size=shape,
             device=self.device,
         )
+        if self.context is not None:
+            out.set("context", self.context.clone())
+        return out
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         x = tensordict.get(keys.OBSERVATION)  # (*B, 3)
@@ -212,7 +227,7 @@ class LasaSphereEnv(EnvBase):
             truncated = torch.zeros_like(terminated)
         else:
             truncated = count >= self.max_steps
-        return TensorDict(
+        out = TensorDict(
             {
                 keys.OBSERVATION: x_next,
                 "step_count": count,
@@ -224,6 +239,9 @@ class LasaSphereEnv(EnvBase):
             batch_size=tensordict.batch_size,
             device=self.device,
         )
+        if self.context is not None:
+            out.set("context", self.context.clone())
+        return out
 
 
 def make_lasa_sphere_env(
@@ -245,7 +263,9 @@ def make_lasa_sphere_env(
         batch_size: see `LasaSphereEnv`; ``MultiStepActorWrapper`` needs a batched env (``[N]``).
         obs_horizon: number of stacked observations (T_o).
         **env_kwargs: forwarded to `LasaSphereEnv` (``max_step``, ``goal_tolerance``,
-            ``max_steps``, ``start_noise``, ``goal``, ``seed``, ``device``).
+            ``max_steps``, ``start_noise``, ``goal``, ``seed``, ``device``, ``context``). With a
+            ``context`` (e.g. a one-hot shape id per batch element), each window step is
+            ``[point, context]`` (``CatTensors``), so one policy can serve several shapes.
 
     Example:
         >>> env = make_lasa_sphere_env(torch.tensor([1.0, 0.0, 0.0]), batch_size=[4], seed=0)
@@ -253,11 +273,24 @@ def make_lasa_sphere_env(
         torch.Size([4, 2, 3])
     """
     env = LasaSphereEnv(start_points, batch_size, **env_kwargs)
+    source = keys.OBSERVATION
+    extra = []
+    if env.context is not None:  # the policy sees [point, context] per step
+        extra = [
+            CatTensors(
+                in_keys=[keys.OBSERVATION, "context"],
+                out_key="obs_cond",
+                sort=False,
+                del_keys=False,
+            )
+        ]
+        source = "obs_cond"
     return TransformedEnv(
         env,
         Compose(
             InitTracker(),
-            UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=["obs_step"]),
+            *extra,
+            UnsqueezeTransform(dim=-2, in_keys=[source], out_keys=["obs_step"]),
             CatFrames(N=obs_horizon, dim=-2, in_keys=["obs_step"], out_keys=["obs_window"]),
         ),
     )

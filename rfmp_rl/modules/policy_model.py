@@ -80,6 +80,7 @@ class ModelConfig:
     tau0: float = 0.0
     tau1: float = 1.0
     time_sampling: str = "uniform"  # uniform | tau (SRFMP only)
+    time_max: float = 1.0  # SRFMP: train on t in [0, time_max]; > 1 teaches the field to hold
     num_diffusion_steps: int = 100  # DDIM training steps
     clip_sample: bool = True  # DDIM clips the predicted clean sample to [-1, 1]
     control_rate_hz: float = 10.0  # rate at which actions are executed (for deployment)
@@ -108,6 +109,11 @@ class ModelConfig:
         if self.time_sampling not in ("uniform", "tau"):
             raise ValueError(
                 f"ModelConfig.time_sampling must be 'uniform' or 'tau', got {self.time_sampling!r}"
+            )
+        if self.time_max <= 0 or (self.algorithm == "rfmp" and self.time_max != 1.0):
+            raise ValueError(
+                f"ModelConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), "
+                f"got {self.time_max} for {self.algorithm}"
             )
         if self.down_dims is None and self.unet_preset not in UNET_PRESETS:
             raise ValueError(
@@ -244,9 +250,10 @@ class FlowModel(PolicyModel):
 
     def sample_times(self, batch: int, device=None, dtype=None) -> torch.Tensor:
         """Training flow times ``(B, 1)``."""
+        t_max = self.cfg.time_max
         if self.stable and self.cfg.time_sampling == "tau":
-            return sample_time_via_tau(self.path, batch, device=device, dtype=dtype)
-        return sample_time(batch, device=device, dtype=dtype)
+            return sample_time_via_tau(self.path, batch, t_max=t_max, device=device, dtype=dtype)
+        return t_max * sample_time(batch, device=device, dtype=dtype)
 
     def velocity(
         self, x: torch.Tensor, time: torch.Tensor, cond: torch.Tensor

