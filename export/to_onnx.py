@@ -6,7 +6,8 @@
 Writes one ONNX graph (normalise -> encode -> NFE solver steps with manifold maps ->
 unnormalise), checks it with ``onnx.checker``, runs it in onnxruntime against the PyTorch
 policy on the same inputs and prior noise, prints the max difference and the latency, and exits
-non-zero if the difference exceeds 1e-4 or a sphere component is off the manifold by > 1e-5.
+non-zero if the difference exceeds 1e-4 (in normalised action units: Euclidean coordinates
+divided by their half-range) or a sphere component is off the manifold by > 1e-5.
 The EMA weights are exported unless ``--raw-weights`` is given.
 """
 

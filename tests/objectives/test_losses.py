@@ -31,7 +31,7 @@ def total(out):
 def test_losses_return_scalar_loss_entries_and_detached_diagnostics(make_tiny_model, algorithm):
     model = make_tiny_model(algorithm, "R3 x S3 x R1", horizon=4)
     out = make_loss(model)(batch(model))
-    assert {k for k in out if k.startswith("loss_")} == LOSS_KEYS[algorithm]
+    assert {k for k in out.keys() if k.startswith("loss_")} == LOSS_KEYS[algorithm]  # noqa: SIM118 (TensorDict iterates its batch)
     for key, value in out.items():
         assert value.shape == () and torch.isfinite(value)
         assert value.requires_grad == key.startswith("loss_")
