@@ -146,7 +146,7 @@ def report(args, model: str, controller: Controller, robot: FakeRobot, stats, mo
     at_minute = rss[np.searchsorted(t, 60.0)] if t[-1] >= 60.0 else rss[0]
     growth = rss[-1] - at_minute
     peak = rss[t >= min(60.0, t[-1])].max() - at_minute
-    half = rss[np.searchsorted(t, t[-1] / 2)]  # steady state: bounded buffers have filled by then
+    half = rss[np.searchsorted(t, t[-1] / 2)]  # bounded buffers (events) may still be filling
     period = 1e3 / args.rate
     expected = int(args.minutes * 60 * args.rate)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(controller.event_counts.items())) or "none"
