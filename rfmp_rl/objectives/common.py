@@ -105,6 +105,19 @@ class ImitationLoss(LossModule):
         cond = model.encode(obs, images or None, gap)
         return cond, model.normalize_action(action), ~pad.to(torch.bool)
 
+    def _flow_target(self, tensordict: TensorDictBase):
+        """Condition, a path sample (x_t, u_t, t[, tau_t, u_tau]) and the valid-step mask.
+
+        Draws ``a_0 ~ p_0`` (one base action repeated over the horizon) and the flow times, and
+        builds the model's conditional path from ``a_0`` to the demonstrated chunk.
+        """
+        model = self.model
+        cond, x1, valid = self._read(tensordict)
+        batch = x1.shape[0]
+        x0 = model.prior.sample(batch, dtype=x1.dtype, device=x1.device)
+        t = model.sample_times(batch, device=x1.device, dtype=x1.dtype)
+        return cond, model.path.sample(x0, x1, t), valid
+
     def _per_step_sqnorm(self, x: torch.Tensor, err: torch.Tensor) -> torch.Tensor:
         """Riemannian squared norm of ``err`` at ``x`` per action step: ``(B, T_p)``."""
         chunk = self.model.chunk

@@ -41,11 +41,7 @@ class SRFMPLoss(ImitationLoss):
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         model = self.model
-        cond, x1, valid = self._read(tensordict)
-        batch = x1.shape[0]
-        x0 = model.prior.sample(batch, dtype=x1.dtype, device=x1.device)
-        t = model.sample_times(batch, device=x1.device, dtype=x1.dtype)
-        target = model.path.sample(x0, x1, t)
+        cond, target, valid = self._flow_target(tensordict)
         v_x, v_tau = model.velocity(target.x_t, target.tau_t, cond)
         per_step = self._per_step_sqnorm(target.x_t, v_x - target.u_t)  # (B, T_p)
         loss_x = self._reduce_loss(per_step, tensordict, mask=valid)
