@@ -21,7 +21,7 @@ Example:
 from __future__ import annotations
 
 from rfmp_deploy.adapters import BagReplay, GymnasiumRobot, ReplayReport
-from rfmp_deploy.controller import Controller
+from rfmp_deploy.controller import Controller, FaultController, open_controller
 from rfmp_deploy.loop import RobotInterface, RunStats, run
 from rfmp_deploy.metadata import FORMAT, InputSpec, ObservationField, PolicyMeta, parse_metadata
 from rfmp_deploy.observation import Frame, ObservationError, ObservationProcessor
@@ -37,6 +37,8 @@ __all__ = [
     "ActionSpace",
     "BagReplay",
     "Controller",
+    "FaultController",
+    "open_controller",
     "Event",
     "Frame",
     "GymnasiumRobot",

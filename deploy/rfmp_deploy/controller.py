@@ -39,7 +39,7 @@ from rfmp_deploy.observation import Frame, ObservationError, ObservationProcesso
 from rfmp_deploy.policy import Policy
 from rfmp_deploy.safety import Event, guard_action, resolve_safe_action
 
-__all__ = ["Controller"]
+__all__ = ["Controller", "FaultController", "open_controller"]
 
 logger = logging.getLogger("rfmp_deploy")
 
@@ -355,3 +355,88 @@ class Controller:
                 self._worker = _InferenceThread(self.policy, self.clock)
             self._pending = (self._worker.submit(*self._inputs()), self._current)
         return action
+
+
+class FaultController:
+    """Stands in for a `Controller` whose model could not be loaded: it holds the safe action.
+
+    A robot loop must not crash because ``policy.onnx`` is missing, truncated or inconsistent
+    with its metadata: `open_controller` returns this instead, so the loop keeps running, every
+    step returns ``safe_action`` and records a ``model_error`` event naming the file and the
+    problem (also logged).
+
+    Example:
+        >>> fault = FaultController(ValueError("policy.onnx: bad"), safe_action=np.zeros(2))
+        >>> fault.step({}), fault.events[0].kind
+        (array([0., 0.], dtype=float32), 'model_error')
+    """
+
+    meta = None
+
+    def __init__(
+        self,
+        error: Exception,
+        safe_action: np.ndarray,
+        clock: Callable[[], float] = time.monotonic,
+        max_events: int = 10_000,
+    ) -> None:
+        self.error = error
+        self.safe_action = np.asarray(safe_action, dtype=np.float32).reshape(-1).copy()
+        if not np.isfinite(self.safe_action).all():
+            raise ValueError(f"safe_action must be finite, got {self.safe_action}")
+        self.clock, self.max_events = clock, int(max_events)
+        self.events: list[Event] = []
+        self.event_counts: Counter[str] = Counter()
+        self.step_count = 0
+        self.plan_count = 0
+        logger.error("no policy, holding the safe action: %s", error)
+
+    def reset(self, seed: int | None = None) -> None:
+        """Nothing to forget: the controller only ever holds."""
+
+    def step(self, observation: Mapping[str, Any]) -> np.ndarray:
+        event = Event(self.clock(), self.step_count, "model_error", f"no policy: {self.error}")
+        if len(self.events) < self.max_events:
+            self.events.append(event)
+        self.event_counts["model_error"] += 1
+        self.step_count += 1
+        return self.safe_action.copy()
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+    def __enter__(self) -> FaultController:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+def open_controller(
+    model: str | os.PathLike[str], safe_action: np.ndarray | None = None, **kwargs: Any
+) -> Controller | FaultController:
+    """`Controller` for ``model``, or a `FaultController` holding ``safe_action`` if it cannot load.
+
+    Args:
+        model: path of the exported ``.onnx`` file.
+        safe_action: the action to hold; required for the fallback (without it a model that
+            cannot be loaded raises, since no safe action can be read from its metadata).
+        **kwargs: forwarded to `Controller`.
+
+    Raises:
+        FileNotFoundError, ValueError: the model cannot be loaded and no ``safe_action`` was
+            given.
+
+    Example:
+        >>> ctl = open_controller("missing.onnx", safe_action=np.zeros(3))
+        >>> type(ctl).__name__, ctl.step({})
+        ('FaultController', array([0., 0., 0.], dtype=float32))
+    """
+    try:
+        return Controller(model, safe_action=safe_action, **kwargs)
+    except (FileNotFoundError, ValueError) as err:
+        if safe_action is None:
+            raise
+        clock = kwargs.get("clock", time.monotonic)
+        return FaultController(err, safe_action, clock=clock,
+                               max_events=kwargs.get("max_events", 10_000))
