@@ -25,7 +25,7 @@ import torch
 from torch import nn
 
 from rfmp_rl import __version__
-from rfmp_rl.manifolds import Euclidean, Manifold, Product, Sphere
+from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
 
 __all__ = ["InferenceGraph", "ExportReport", "export_onnx", "onnx_metadata", "ONNX_FORMAT"]
@@ -78,29 +78,6 @@ class InferenceGraph(nn.Module):
         return self.model.sample(cond, noise, **self.solver)
 
 
-def _manifold_limits(manifold: Manifold, low: np.ndarray, high: np.ndarray) -> tuple[list, list]:
-    lows, highs, i = [], [], 0
-
-    def walk(m: Manifold) -> None:
-        nonlocal i
-        if isinstance(m, Product):
-            for c in m.components:
-                walk(c)
-        elif isinstance(m, Sphere):
-            lows.extend([-1.0] * m.dim)
-            highs.extend([1.0] * m.dim)
-            i += m.dim
-        elif isinstance(m, Euclidean):
-            lows.extend(float(v) for v in low[i : i + m.dim])
-            highs.extend(float(v) for v in high[i : i + m.dim])
-            i += m.dim
-        else:
-            raise TypeError(f"no action limits for {m!r}")
-
-    walk(manifold)
-    return lows, highs
-
-
 def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
     """The ``rfmp_rl.onnx/1`` metadata for an inference graph."""
     model, cfg = graph.model, graph.model.cfg
@@ -109,9 +86,10 @@ def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
             "the action normaliser was never fitted (no action statistics): refusing to export a "
             "policy whose action limits are unknown"
         )
-    low = model.action_normalizer.data_min.numpy()
-    high = model.action_normalizer.data_max.numpy()
-    action_low, action_high = _manifold_limits(model.step_manifold, low, high)
+    # Euclidean coordinates: the demonstrated range; sphere coordinates: [-1, 1].
+    norm = model.action_normalizer
+    action_low = torch.where(norm.mask, norm.data_min, -1.0).tolist()
+    action_high = torch.where(norm.mask, norm.data_max, 1.0).tolist()
     inputs: list[dict[str, Any]] = []
     if graph.has_obs:
         inputs.append(
@@ -188,21 +166,13 @@ class ExportReport:
 
 
 def _sphere_error(manifold: Manifold, action: np.ndarray) -> float:
-    worst, i = 0.0, 0
-
-    def walk(m: Manifold) -> None:
-        nonlocal worst, i
-        if isinstance(m, Product):
-            for c in m.components:
-                walk(c)
-            return
-        if isinstance(m, Sphere):
-            norms = np.linalg.norm(action[..., i : i + m.dim].astype(np.float64), axis=-1)
-            worst = max(worst, float(np.abs(norms - 1).max()))
-        i += m.dim
-
-    walk(manifold)
-    return worst
+    """Largest | |x| - 1 | over the sphere components of ``action (..., D)``."""
+    errors = [
+        np.abs(np.linalg.norm(action[..., part].astype(np.float64), axis=-1) - 1).max()
+        for part, leaf in leaf_slices(manifold)
+        if isinstance(leaf, Sphere)
+    ]
+    return float(max(errors, default=0.0))
 
 
 def _example_inputs(graph: InferenceGraph, batch: int, generator: torch.Generator):

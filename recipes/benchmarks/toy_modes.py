@@ -29,7 +29,7 @@ from tensordict import TensorDict
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
-from rfmp_rl.manifolds import Manifold, Product, Sphere, parse_manifold  # noqa: E402
+from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold  # noqa: E402
 from rfmp_rl.modules import EMA, ModelConfig, build_model  # noqa: E402
 from rfmp_rl.objectives import make_loss  # noqa: E402
 
@@ -96,15 +96,7 @@ def train(algorithm: str, manifold: str, horizon: int, steps: int, batch: int = 
 
 
 def sphere_parts(step: Manifold, x: torch.Tensor) -> list[torch.Tensor]:
-    if isinstance(step, Sphere):
-        return [x]
-    if isinstance(step, Product):
-        return [
-            p
-            for c, xc in zip(step.components, step.split(x), strict=True)
-            for p in sphere_parts(c, xc)
-        ]
-    return []
+    return [x[..., part] for part, leaf in leaf_slices(step) if isinstance(leaf, Sphere)]
 
 
 @torch.no_grad()

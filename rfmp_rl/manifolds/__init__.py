@@ -7,7 +7,7 @@ from typing import Any
 
 from rfmp_rl.manifolds.base import Manifold, eps_for, safe_norm
 from rfmp_rl.manifolds.euclidean import Euclidean
-from rfmp_rl.manifolds.product import Horizon, Product
+from rfmp_rl.manifolds.product import Horizon, Product, leaf_slices
 from rfmp_rl.manifolds.quaternion import canonicalize_quaternion, hemisphere_continuous
 from rfmp_rl.manifolds.sphere import Sphere
 from rfmp_rl.manifolds.stereographic import plane_to_sphere, sphere_to_plane
@@ -18,6 +18,7 @@ __all__ = [
     "Sphere",
     "Product",
     "Horizon",
+    "leaf_slices",
     "from_spec",
     "parse_manifold",
     "canonicalize_quaternion",

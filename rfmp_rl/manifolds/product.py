@@ -9,7 +9,7 @@ import torch
 
 from rfmp_rl.manifolds.base import Manifold
 
-__all__ = ["Product", "Horizon"]
+__all__ = ["Product", "Horizon", "leaf_slices"]
 
 
 class Product(Manifold):
@@ -184,3 +184,21 @@ class Horizon(Manifold):
 
     def __repr__(self) -> str:
         return f"Horizon({self.step!r}, steps={self.steps})"
+
+
+def leaf_slices(manifold: Manifold) -> list[tuple[slice, Manifold]]:
+    """The non-product factors of a (possibly nested) product and their coordinate slices.
+
+    Example:
+        >>> from rfmp_rl.manifolds import parse_manifold
+        >>> [(s.start, s.stop, repr(m)) for s, m in leaf_slices(parse_manifold("R3 x S3 x R1"))]
+        [(0, 3, 'Euclidean(3)'), (3, 7, 'Sphere(3)'), (7, 8, 'Euclidean(1)')]
+    """
+    if not isinstance(manifold, Product):
+        return [(slice(0, manifold.dim), manifold)]
+    out, start = [], 0
+    for component in manifold.components:
+        for inner, leaf in leaf_slices(component):
+            out.append((slice(start + inner.start, start + inner.stop), leaf))
+        start += component.dim
+    return out
