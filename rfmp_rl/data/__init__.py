@@ -1,18 +1,45 @@
-"""Demonstration data in TorchRL replay buffers."""
+"""Demonstration data in TorchRL replay buffers: readers, the store and the paper's sampler."""
 
+from rfmp_rl.data.dp_zarr import read_dp_zarr, write_dp_zarr
+from rfmp_rl.data.episodes import DataError, Manifest, make_episode
 from rfmp_rl.data.lasa import (
     LASA_MULTI_MODELS,
     LASA_SHAPES,
     lasa_episodes,
     load_lasa,
     load_lasa_sphere,
+    read_lasa,
 )
+from rfmp_rl.data.robomimic import read_robomimic, write_robomimic
+from rfmp_rl.data.rosbag import RosbagConfig, TopicConfig, load_rosbag_config, read_rosbags
 from rfmp_rl.data.slices import SlicesToChunks
+from rfmp_rl.data.store import (
+    ContextChunk,
+    DemonstrationStore,
+    HorizonContextSampler,
+    sample_indices,
+)
 from rfmp_rl.data.windows import episode_windows
 
 __all__ = [
+    "DataError",
+    "Manifest",
+    "make_episode",
+    "DemonstrationStore",
+    "HorizonContextSampler",
+    "ContextChunk",
+    "sample_indices",
     "SlicesToChunks",
     "episode_windows",
+    "read_dp_zarr",
+    "write_dp_zarr",
+    "read_robomimic",
+    "write_robomimic",
+    "read_rosbags",
+    "RosbagConfig",
+    "TopicConfig",
+    "load_rosbag_config",
+    "read_lasa",
     "LASA_SHAPES",
     "LASA_MULTI_MODELS",
     "load_lasa",

