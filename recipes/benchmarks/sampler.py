@@ -91,8 +91,9 @@ def main() -> None:
         f"({cpu}, {args.threads} threads, torch {torch.__version__}); medians of "
         "200 (state) / 50 (image) draws and 10 / 5 training steps.",
         "",
-        "Measured on the 2-core development machine while other single-thread jobs (training, evaluation) "
-        "shared the two cores (both timings in the same process, so the ratio is like for like).",
+        "Measured on the 2-core development machine while other single-thread jobs (training, "
+        "evaluation) shared the two cores (both timings in the same process, so the ratio is "
+        "like for like).",
         "",
         "| store | batch | rb.sample() ms | SRFMP small train step ms | sample / step |",
         "|---|---|---|---|---|",
