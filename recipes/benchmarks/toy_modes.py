@@ -84,8 +84,8 @@ def train(
     the `ModelConfig` below (e.g. ``prior_scale=0.3``).
     """
     settings = SETTINGS[manifold]
-    steps = steps or settings["steps"]
-    lr = lr or settings["lr"]
+    steps = settings["steps"] if steps is None else steps
+    lr = settings["lr"] if lr is None else lr
     torch.manual_seed(seed)
     step = parse_manifold(manifold)
     modes = two_modes(step, horizon)
@@ -163,7 +163,7 @@ def main() -> None:
     print("\n".join(lines), flush=True)
     for case, seed in [(c, s) for c in args.cases for s in args.seeds]:
         algorithm, manifold, horizon, nfe = CASES[case]
-        steps = args.steps or SETTINGS[manifold]["steps"]
+        steps = SETTINGS[manifold]["steps"] if args.steps is None else args.steps
         model, modes, seconds = train(algorithm, manifold, horizon, steps, seed=seed)
         r = evaluate(model, modes, nfe)
         ok = r["mean_dist"] <= 0.05 and min(r["share"]) >= 0.3 and r["sphere_err"] <= 1e-5
