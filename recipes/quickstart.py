@@ -97,8 +97,9 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
         obs_dim=3 + n_shapes,
         obs_manifold=f"S2 x R{n_shapes}",  # the sphere point is left unnormalised
         obs_keys=[["point", 3], ["shape", n_shapes]],
-        time_sampling="tau" if algorithm == "srfmp" else "uniform",
+        time_sampling=cfg.srfmp_time_sampling if algorithm == "srfmp" else "uniform",
         time_max=cfg.srfmp_time_max if algorithm == "srfmp" else 1.0,
+        t0_fraction=cfg.srfmp_t0_fraction if algorithm == "srfmp" else 0.0,
         unet_preset=cfg.preset,
         down_dims=list(cfg.down_dims) if cfg.down_dims else None,
         prior_sphere=cfg.prior,
@@ -112,7 +113,9 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
     model.action_normalizer.fit(data["action"])
     model.obs_normalizer.fit(data["observation"])
     loss_fn = make_loss(model)
-    optim = torch.optim.AdamW(model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay)
+    optim = torch.optim.AdamW(
+        model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True
+    )
     warmup = max(1, cfg.steps // 20)  # linear warm-up, then cosine decay to 0
     sched = torch.optim.lr_scheduler.LambdaLR(
         optim,

@@ -20,7 +20,7 @@ from pathlib import Path
 import yaml
 
 TASK_KEYS = ("algo", "obs", "space", "prior", "preset", "down_dims", "horizon", "action_steps",
-             "obs_horizon", "time_max", "seed", "threads")
+             "obs_horizon", "time_max", "t0_fraction", "seed", "threads")
 
 
 def train_command(cfg: dict) -> str:
@@ -32,6 +32,10 @@ def train_command(cfg: dict) -> str:
                   f"train.max_minutes={cfg['train']['max_minutes']}"]
     if cfg.get("down_dims"):
         overrides.append(f"down_dims={cfg['down_dims']}")
+    for key in ("time_max", "t0_fraction", "prior_repeat"):
+        default = {"time_max": 1.0, "t0_fraction": 0.0, "prior_repeat": True}[key]
+        if key in cfg and cfg[key] != default:
+            overrides.append(f"{key}={cfg[key]}")
     return ".venv/bin/python recipes/pusht/train.py " + " ".join(overrides)
 
 
@@ -55,6 +59,10 @@ def main() -> None:
             f" ({cfg['prior']} prior)" if cfg["space"] == "sphere" and cfg["algo"] != "dp" else "")
         if cfg["algo"] == "srfmp" and float(cfg.get("time_max", 1.0)) != 1.0:
             name += f", trained on t in [0, {cfg['time_max']:g}]"
+        if float(cfg.get("t0_fraction", 0.0)):
+            name += f", {cfg['t0_fraction']:g} of training times at t = 0"
+        if not cfg.get("prior_repeat", True):
+            name += ", independent prior per chunk step"
         name += f", {cfg['train']['max_minutes']:g} min cap"
         for r in rows:
             summary.setdefault(name, {})[(int(r["nfe"]), float(r["t_end"]))] = float(r["score"])

@@ -104,9 +104,11 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         down_dims=list(cfg.down_dims) if cfg.down_dims else None,
         prior_sphere=cfg.prior,
         prior_scale=cfg.prior_scale,
+        prior_repeat=cfg.prior_repeat,
         lambda_x=cfg.lambda_x,
         lambda_tau=cfg.lambda_tau,
         time_max=cfg.time_max if algorithm == "srfmp" else 1.0,
+        t0_fraction=cfg.t0_fraction if algorithm != "ddim" else 0.0,
         control_rate_hz=1.0 / CONTROL_DT,
     )
 

@@ -162,9 +162,11 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         down_dims=list(cfg.down_dims) if cfg.down_dims else None,
         prior_sphere=cfg.prior,
         prior_scale=cfg.prior_scale,
+        prior_repeat=cfg.prior_repeat,
         lambda_x=cfg.lambda_x,
         lambda_tau=cfg.lambda_tau,
         time_max=cfg.time_max if algorithm == "srfmp" else 1.0,
+        t0_fraction=cfg.t0_fraction if algorithm != "ddim" else 0.0,
         control_rate_hz=float(ROBOSUITE_CONTROL_FREQ),
     )
 
@@ -205,7 +207,8 @@ def make_env(cfg: DictConfig, seeds: list[int]):
 
 @torch.no_grad()
 def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env) -> dict:
-    """One closed-loop evaluation over the env's seeds (one batched env, reset here)."""
+    """One closed-loop evaluation over the env's seeds (one batched env, reset here); the row's
+    ``per_seed`` lists each seed's success (0/1, in the env's seed order)."""
     actor = make_env_actor(model, cfg, nfe, t_end)
     mode = (ExplorationType.DETERMINISTIC if cfg.eval.sampling == "deterministic"
             else ExplorationType.RANDOM)
@@ -238,6 +241,7 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env) -> dict:
         "env_steps": int(steps.sum()),
         "seconds": seconds,
         "seeds": f"{env.base_env.seeds[0]}-{env.base_env.seeds[-1]}",
+        "per_seed": [int(v) for v in success.tolist()],
     }
 
 
@@ -261,7 +265,8 @@ def sweep(model, cfg: DictConfig, progress=None) -> list[dict]:
 def write_tables(rows: list[dict], out_dir: Path, title: str, command: str) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / "eval.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer = csv.DictWriter(f, fieldnames=[k for k in rows[0] if k != "per_seed"],
+                                extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
     lines = [f"## {title}", "", f"Command: `{command}`", "",

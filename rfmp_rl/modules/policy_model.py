@@ -75,12 +75,14 @@ class ModelConfig:
     prior_sphere: str = "uniform"  # uniform | wrapped (sphere components)
     prior_scale: float = 1.0  # tangent std of wrapped Gaussians
     prior_std: float = 1.0  # std of Euclidean Gaussians
+    prior_repeat: bool = True  # one base action repeated over the chunk (paper) or one per step
     lambda_x: float = 2.5
     lambda_tau: float = 2.5
     tau0: float = 0.0
     tau1: float = 1.0
     time_sampling: str = "uniform"  # uniform | tau (SRFMP only)
     time_max: float = 1.0  # SRFMP: train on t in [0, time_max]; > 1 teaches the field to hold
+    t0_fraction: float = 0.0  # RFMP/SRFMP: share of training times set to t = 0 (see sample_times)
     num_diffusion_steps: int = 100  # DDIM training steps
     clip_sample: bool = True  # DDIM clips the predicted clean sample to [-1, 1]
     control_rate_hz: float = 10.0  # rate at which actions are executed (for deployment)
@@ -114,6 +116,11 @@ class ModelConfig:
             raise ValueError(
                 f"ModelConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), "
                 f"got {self.time_max} for {self.algorithm}"
+            )
+        if not 0.0 <= self.t0_fraction < 1.0 or (self.algorithm == "ddim" and self.t0_fraction):
+            raise ValueError(
+                f"ModelConfig.t0_fraction must lie in [0, 1) and is for the flows (rfmp, srfmp), "
+                f"got {self.t0_fraction} for {self.algorithm}"
             )
         if self.down_dims is None and self.unet_preset not in UNET_PRESETS:
             raise ValueError(
@@ -236,7 +243,7 @@ class FlowModel(PolicyModel):
         step_prior = make_prior(
             self.step_manifold, sphere=cfg.prior_sphere, scale=cfg.prior_scale, std=cfg.prior_std
         )
-        self.prior = HorizonPrior(step_prior, cfg.horizon, repeat=True)
+        self.prior = HorizonPrior(step_prior, cfg.horizon, repeat=cfg.prior_repeat)
         if self.stable:
             self.path = StablePath(self.chunk, cfg.lambda_x, cfg.lambda_tau, cfg.tau0, cfg.tau1)
             self.state_manifold: Manifold = Product([self.chunk, Euclidean(1)])
@@ -249,11 +256,23 @@ class FlowModel(PolicyModel):
         return self.prior.noise_dim
 
     def sample_times(self, batch: int, device=None, dtype=None) -> torch.Tensor:
-        """Training flow times ``(B, 1)``."""
+        """Training flow times ``(B, 1)``.
+
+        ``t ~ U[0, time_max]`` (or uniform in tau with ``time_sampling='tau'``); then a share
+        ``t0_fraction`` of them is set to exactly ``t = 0``. That is where every sample takes its
+        first step, and a one-step (NFE = 1) SRFMP sample its only one: there the field must map
+        a prior draw straight to its target (``x1 = Exp_x0(v / lambda_x)``), which uniform times
+        visit rarely.
+        """
         t_max = self.cfg.time_max
         if self.stable and self.cfg.time_sampling == "tau":
-            return sample_time_via_tau(self.path, batch, t_max=t_max, device=device, dtype=dtype)
-        return t_max * sample_time(batch, device=device, dtype=dtype)
+            t = sample_time_via_tau(self.path, batch, t_max=t_max, device=device, dtype=dtype)
+        else:
+            t = t_max * sample_time(batch, device=device, dtype=dtype)
+        if self.cfg.t0_fraction > 0:
+            at_start = torch.rand(t.shape, device=t.device) < self.cfg.t0_fraction
+            t = t.masked_fill(at_start, 0.0)
+        return t
 
     def velocity(
         self, x: torch.Tensor, time: torch.Tensor, cond: torch.Tensor

@@ -134,3 +134,38 @@ def test_flow_policy_runs_inside_a_sync_data_collector(make_tiny_model):
     for batch in batches:
         assert batch["action"].shape == (1, 8, 1)
         assert torch.isfinite(batch["next", "reward"]).all()
+
+
+@pytest.mark.parametrize("algorithm", ["rfmp", "srfmp"])
+def test_t0_fraction_puts_that_share_of_training_times_at_the_start(make_tiny_model, algorithm):
+    torch.manual_seed(0)
+    plain = make_tiny_model(algorithm).sample_times(20000)
+    model = make_tiny_model(algorithm, t0_fraction=0.3)
+    times = model.sample_times(20000)
+    assert float((plain == 0).float().mean()) < 1e-3
+    assert abs(float((times == 0).float().mean()) - 0.3) < 0.02
+    rest = times[times > 0]
+    assert float(rest.max()) <= 1.0 and abs(float(rest.mean()) - float(plain.mean())) < 0.02
+
+
+@pytest.mark.parametrize("bad", [{"t0_fraction": 1.0}, {"t0_fraction": -0.1}])
+def test_t0_fraction_outside_zero_one_is_refused(make_tiny_model, bad):
+    with pytest.raises(ValueError, match="t0_fraction"):
+        make_tiny_model("srfmp", **bad)
+
+
+def test_t0_fraction_is_refused_for_ddim(make_tiny_model):
+    with pytest.raises(ValueError, match="t0_fraction.*ddim"):
+        make_tiny_model("ddim", t0_fraction=0.2)
+
+
+@pytest.mark.parametrize("repeat", [True, False])
+def test_prior_repeat_sets_one_base_action_or_one_per_step(make_tiny_model, repeat):
+    model = make_tiny_model("rfmp", horizon=4, prior_repeat=repeat)
+    assert model.noise_dim == (3 if repeat else 12)
+    x0 = model.chunk.unflatten(model.prior.from_noise(torch.randn(5, model.noise_dim)))
+    same = bool((x0 == x0[:, :1]).all())
+    assert same == repeat
+    assert float((x0.norm(dim=-1) - 1).abs().max()) < 1e-6
+    chunk = model.sample(model.encode(torch.randn(5, 2, 3)), nfe=2)
+    assert chunk.shape == (5, 4, 3)

@@ -1,0 +1,183 @@
+"""Check that the exported ONNX controller of a robosuite checkpoint gets the same closed-loop
+success as the PyTorch policy on the same seeds.
+
+    python recipes/robosuite/eval_onnx.py checkpoint=runs/robosuite/<run>/best.pt
+    python recipes/robosuite/eval_onnx.py checkpoint=... eval.seeds=10 onnx_nfe=3
+
+The checkpoint is exported at ``onnx_nfe`` (default 1, T = 1) with `rfmp_rl.onnx_export` (its
+onnxruntime-vs-PyTorch parity check runs and must pass). The PyTorch reference is eval.py's
+sweep at that NFE with deterministic sampling (the prior's mode); the ONNX side runs the deploy
+controller (``deploy/rfmp_deploy``: numpy and onnxruntime only, zero prior noise, its action
+clipping and safety checks) in a batch-1 env per seed, fed the env's per-step observation keys.
+Both use the seeds ``eval.seed_start .. + eval.seeds`` and the step limit ``eval.max_steps``.
+
+Writes policy_nfe<N>.onnx, eval_onnx.md and eval_onnx.csv (seed, torch_success, onnx_success)
+to ``eval.out`` (default ``<checkpoint folder>/eval_onnx``); exits non-zero when the two success
+rates differ.
+"""
+
+from __future__ import annotations
+
+import csv
+import statistics
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+
+import hydra
+import torch
+from omegaconf import DictConfig, OmegaConf
+from utils import (  # noqa: I001
+    ROOT,
+    check_config,
+    load_for_eval,
+    make_env,
+    sweep,
+)
+
+from rfmp_rl.envs.robosuite import ROBOSUITE_MAX_STEPS
+from rfmp_rl.onnx_export import export_onnx
+
+
+def _controller_types():
+    """``(Controller, Policy)`` of the torch-free deploy package (``deploy/rfmp_deploy``)."""
+    if str(ROOT / "deploy") not in sys.path:
+        sys.path.insert(0, str(ROOT / "deploy"))
+    from rfmp_deploy import Controller, Policy
+
+    return Controller, Policy
+
+
+def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> dict:
+    """One episode per seed with the deploy controller; per-seed success, step latencies (s) and
+    the safety events other than ``clamped`` as ``(seed, Event)``."""
+    Controller, Policy = _controller_types()
+    controller = Controller(Policy(str(onnx_path), intra_op_threads=int(task.threads)),
+                            deterministic=True)
+    fields = [f.key for f in controller.meta.observation_keys]
+    cameras = list(controller.meta.cameras)
+    max_steps = int(task.eval.max_steps or ROBOSUITE_MAX_STEPS[task.task])
+    success, latencies, events = [], [], []
+    for seed in seeds:
+        env = make_env(task, [seed])
+        try:
+            td = env.reset()
+            controller.reset()
+            seen = len(controller.events)
+            for _ in range(max_steps):
+                # the env's per-step entries (not its windows): the controller keeps the history
+                observation = {k: td[k][0].numpy() for k in fields}
+                observation.update({c: td[c][0].permute(1, 2, 0).numpy() for c in cameras})
+                start = time.perf_counter()
+                action = controller.step(observation)
+                latencies.append(time.perf_counter() - start)
+                td["action"] = torch.as_tensor(action, dtype=torch.float32)[None]
+                td = env.step(td)["next"]
+                if bool(td["done"].any()):
+                    break
+            success.append(int(td["success"][0, 0]))
+            events += [(seed, e) for e in controller.events[seen:] if e.kind != "clamped"]
+        finally:
+            env.close()
+    return {"per_seed": success, "latencies": latencies, "events": events}
+
+
+def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, report,
+                 title: str, command: str) -> Path:
+    """eval_onnx.csv (one row per seed) and eval_onnx.md; returns the md path."""
+    out.mkdir(parents=True, exist_ok=True)
+    torch_ok, onnx_ok = torch_row["per_seed"], onnx["per_seed"]
+    with open(out / "eval_onnx.csv", "w", newline="") as f:
+        writer = csv.writer(f)
+        writer.writerow(["seed", "torch_success", "onnx_success"])
+        writer.writerows(zip(seeds, torch_ok, onnx_ok, strict=True))
+    n = len(seeds)
+    torch_rate, onnx_rate = sum(torch_ok) / n, sum(onnx_ok) / n
+    differ = [s for s, a, b in zip(seeds, torch_ok, onnx_ok, strict=True) if a != b]
+    ms = [t * 1e3 for t in onnx["latencies"]] or [float("nan")]
+    kinds = Counter(e.kind for _, e in onnx["events"])
+    nfe, t_end = torch_row["nfe"], torch_row["t_end"]
+    seed_range = f"{seeds[0]}-{seeds[-1]}"
+    lines = [
+        f"## ONNX controller vs PyTorch: {title}", "", f"Command: `{command}`", "",
+        "| policy | NFE | T | success | successes | seeds |", "|---|---|---|---|---|---|",
+        f"| PyTorch (deterministic: prior mode) | {nfe} | {t_end:g} | {torch_rate:.2f} | "
+        f"{sum(torch_ok)}/{n} | {seed_range} |",
+        f"| ONNX controller (rfmp_deploy, zero noise) | {nfe} | {t_end:g} | {onnx_rate:.2f} | "
+        f"{sum(onnx_ok)}/{n} | {seed_range} |",
+        "",
+        f"- Seeds where they disagree: {len(differ)} of {n}"
+        + (f" ({', '.join(map(str, differ))})" if differ else ""),
+        f"- Controller step latency: median {statistics.median(ms):.2f} ms, max {max(ms):.2f} ms "
+        f"over {len(onnx['latencies'])} steps",
+        "- Safety events (other than clamped): "
+        + (", ".join(f"{k} x{v}" for k, v in sorted(kinds.items())) if kinds else "none"),
+        f"- Export parity ({report.path.name}): max |onnxruntime - torch| = "
+        f"{report.max_abs_diff:.3g} in normalised action units (limit 1e-4; "
+        f"{report.max_raw_diff:.3g} raw), max | |q| - 1 | = {report.max_sphere_error:.3g} "
+        f"(limit 1e-5); batch-1 latency onnxruntime {report.onnx_latency_ms:.2f} ms, torch "
+        f"eager {report.torch_latency_ms:.2f} ms",
+    ]
+    for seed, e in onnx["events"][:20]:
+        lines.append(f"  - seed {seed}, step {e.step}: {e.kind}: {e.message}")
+    if len(onnx["events"]) > 20:
+        lines.append(f"  - ... {len(onnx['events']) - 20} more")
+    (out / "eval_onnx.md").write_text("\n".join(lines) + "\n")
+    return out / "eval_onnx.md"
+
+
+def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
+    """Export ``cfg.checkpoint``, run PyTorch and the ONNX controller on the same seeds and
+    write the tables; returns ``{"torch", "onnx", "differ", "md", "onnx_path"}`` (success
+    rates, disagreeing seeds, paths)."""
+    if not cfg.checkpoint:
+        raise SystemExit("eval_onnx.py: give the checkpoint: "
+                         "checkpoint=runs/robosuite/<run>/best.pt")
+    if not Path(cfg.checkpoint).is_file():
+        raise SystemExit(f"eval_onnx.py: no such checkpoint: {cfg.checkpoint}")
+    model, task, extra, _ = load_for_eval(cfg, check_config)
+    nfe, t_end = int(cfg.onnx_nfe), 1.0
+    out = Path(cfg.eval.out) if cfg.eval.out else Path(cfg.checkpoint).parent / "eval_onnx"
+    if command is None:
+        command = "python recipes/robosuite/eval_onnx.py " + " ".join(sys.argv[1:])
+
+    try:
+        report = export_onnx(model, out / f"policy_nfe{nfe}.onnx", nfe, t_end=t_end)
+    except (RuntimeError, ValueError) as err:
+        raise SystemExit(f"eval_onnx.py: export failed: {err}") from err
+    print(report.summary())
+
+    ref = OmegaConf.merge(task, {"eval": {"sampling": "deterministic", "nfes": [nfe],
+                                          "t_ends": [t_end], "time_table": []}})
+    seeds = list(range(int(ref.eval.seed_start), int(ref.eval.seed_start) + int(ref.eval.seeds)))
+    (torch_row,) = sweep(model, ref)
+    print(f"  PyTorch NFE={nfe} (deterministic): success {torch_row['success']:.2f} "
+          f"({torch_row['seconds']:.0f} s)")
+    start = time.perf_counter()
+    onnx = run_onnx_controller(report.path, ref, seeds)
+    onnx_rate = sum(onnx["per_seed"]) / len(seeds)
+    print(f"  ONNX    NFE={nfe} (zero noise):    success {onnx_rate:.2f} "
+          f"({time.perf_counter() - start:.0f} s)")
+
+    title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} ({task.preset}, step "
+             f"{extra.get('step')}, {extra.get('train_minutes', float('nan')):.0f} min training)")
+    md = write_report(out, seeds, torch_row, onnx, report, title, command)
+    print(md.read_text())
+    differ = [s for s, a, b in zip(seeds, torch_row["per_seed"], onnx["per_seed"], strict=True)
+              if a != b]
+    return {"torch": sum(torch_row["per_seed"]) / len(seeds), "onnx": onnx_rate,
+            "differ": differ, "md": md, "onnx_path": report.path}
+
+
+@hydra.main(config_path=".", config_name="config", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    result = evaluate_onnx(cfg)
+    if result["torch"] != result["onnx"]:
+        print(f"eval_onnx.py: success rates differ: PyTorch {result['torch']:.2f}, ONNX "
+              f"{result['onnx']:.2f}", file=sys.stderr)
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()
