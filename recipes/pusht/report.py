@@ -32,8 +32,7 @@ def train_command(cfg: dict) -> str:
                   f"train.max_minutes={cfg['train']['max_minutes']}"]
     if cfg.get("down_dims"):
         overrides.append(f"down_dims={cfg['down_dims']}")
-    for key in ("time_max", "t0_fraction", "prior_repeat"):
-        default = {"time_max": 1.0, "t0_fraction": 0.0, "prior_repeat": True}[key]
+    for key, default in (("time_max", 1.0), ("t0_fraction", 0.0), ("prior_repeat", True)):
         if key in cfg and cfg[key] != default:
             overrides.append(f"{key}={cfg[key]}")
     return ".venv/bin/python recipes/pusht/train.py " + " ".join(overrides)

@@ -83,8 +83,8 @@ def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> 
     return {"per_seed": success, "latencies": latencies, "events": events}
 
 
-def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, report,
-                 title: str, command: str) -> Path:
+def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, differ: list[int],
+                 report, title: str, command: str) -> Path:
     """eval_onnx.csv (one row per seed) and eval_onnx.md; returns the md path."""
     out.mkdir(parents=True, exist_ok=True)
     torch_ok, onnx_ok = torch_row["per_seed"], onnx["per_seed"]
@@ -94,7 +94,6 @@ def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, repor
         writer.writerows(zip(seeds, torch_ok, onnx_ok, strict=True))
     n = len(seeds)
     torch_rate, onnx_rate = sum(torch_ok) / n, sum(onnx_ok) / n
-    differ = [s for s, a, b in zip(seeds, torch_ok, onnx_ok, strict=True) if a != b]
     ms = [t * 1e3 for t in onnx["latencies"]] or [float("nan")]
     kinds = Counter(e.kind for _, e in onnx["events"])
     nfe, t_end = torch_row["nfe"], torch_row["t_end"]
@@ -162,10 +161,10 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
 
     title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} ({task.preset}, step "
              f"{extra.get('step')}, {extra.get('train_minutes', float('nan')):.0f} min training)")
-    md = write_report(out, seeds, torch_row, onnx, report, title, command)
-    print(md.read_text())
     differ = [s for s, a, b in zip(seeds, torch_row["per_seed"], onnx["per_seed"], strict=True)
               if a != b]
+    md = write_report(out, seeds, torch_row, onnx, differ, report, title, command)
+    print(md.read_text())
     return {"torch": sum(torch_row["per_seed"]) / len(seeds), "onnx": onnx_rate,
             "differ": differ, "md": md, "onnx_path": report.path}
 
