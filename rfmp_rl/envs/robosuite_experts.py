@@ -330,6 +330,32 @@ class RobosuiteExpert:
             return goal, self._grasp_yaw, _GRIP_CLOSE, 0.7 * self.speed
         return self._sp_pos.copy(), self._grasp_yaw, _GRIP_OPEN, self.speed  # give_up
 
+    def _lift_to_carry_height(self, sim_env: Any):
+        """Lift phase of the pick-and-place experts: straight up to ``carry_z``, re-grasping if
+        the object slips out; on to "carry" once there (or after 60 steps)."""
+        goal = np.array([self._sp_pos[0], self._sp_pos[1], self.params["carry_z"]])
+        if self.phase_steps > 8 and not self._holding(sim_env, 0.04):
+            self._regrasp()
+            return None
+        if self._reached(sim_env, goal, None, 0.02) or self.phase_steps > 60:
+            self._next("carry")
+            return None
+        return goal, self._grasp_yaw, _GRIP_CLOSE, 0.8 * self.speed
+
+    def _release_and_retreat(self, yaw: float):
+        """Last phases of the pick-and-place experts: open for 8 steps where the hand is, then
+        rise to ``carry_z`` with the wrist at ``yaw``; the grasp yaw once given up."""
+        if self.phase == "release":
+            if self.phase_steps >= 8:
+                self._next("retreat")
+                return None
+            return self._sp_pos.copy(), yaw, _GRIP_OPEN, self.speed
+        if self.phase == "retreat":
+            goal = self._sp_pos.copy()
+            goal[2] = self.params["carry_z"]
+            return goal, yaw, _GRIP_OPEN, self.speed
+        return self._sp_pos.copy(), self._grasp_yaw, _GRIP_OPEN, self.speed  # give_up
+
     def _plan_PickPlaceCan(self, sim_env: Any):
         p = self.params
         obj, _ = self._object(sim_env)
@@ -337,14 +363,7 @@ class RobosuiteExpert:
         if self.phase in ("approach", "descend", "close"):
             return self._common(sim_env, obj, 0.0, math.pi)
         if self.phase == "lift":
-            goal = np.array([self._sp_pos[0], self._sp_pos[1], p["carry_z"]])
-            if self.phase_steps > 8 and not self._holding(sim_env, 0.04):
-                self._regrasp()
-                return None
-            if self._reached(sim_env, goal, None, 0.02) or self.phase_steps > 60:
-                self._next("carry")
-                return None
-            return goal, self._grasp_yaw, _GRIP_CLOSE, 0.8 * self.speed
+            return self._lift_to_carry_height(sim_env)
         if self.phase == "carry":
             if not self._holding(sim_env, 0.05):
                 self._regrasp()
@@ -363,16 +382,7 @@ class RobosuiteExpert:
                 self._next("release")
                 return None
             return goal, 0.0, _GRIP_CLOSE, 0.6 * self.speed
-        if self.phase == "release":
-            if self.phase_steps >= 8:
-                self._next("retreat")
-                return None
-            return self._sp_pos.copy(), self._grasp_yaw, _GRIP_OPEN, self.speed
-        if self.phase == "retreat":
-            goal = self._sp_pos.copy()
-            goal[2] = p["carry_z"]
-            return goal, self._grasp_yaw, _GRIP_OPEN, self.speed
-        return self._sp_pos.copy(), self._grasp_yaw, _GRIP_OPEN, self.speed  # give_up
+        return self._release_and_retreat(self._grasp_yaw)
 
     def _plan_nut_turn(self, nut_yaw: float) -> None:
         """Choose how to hold the handle and how to turn the nut onto the square peg.
@@ -401,14 +411,7 @@ class RobosuiteExpert:
             return self._common(sim_env, handle, wrap_angle(nut_yaw - self._nut_offset),
                                 2 * math.pi)
         if self.phase == "lift":
-            goal = np.array([self._sp_pos[0], self._sp_pos[1], p["carry_z"]])
-            if self.phase_steps > 8 and not self._holding(sim_env, 0.04):
-                self._regrasp()
-                return None
-            if self._reached(sim_env, goal, None, 0.02) or self.phase_steps > 60:
-                self._next("carry")
-                return None
-            return goal, self._grasp_yaw, _GRIP_CLOSE, 0.8 * self.speed
+            return self._lift_to_carry_height(sim_env)
         if self.phase in ("carry", "lower"):
             if not self._holding(sim_env, 0.05):
                 self._regrasp()
@@ -433,16 +436,7 @@ class RobosuiteExpert:
                 dz = 0.0  # centre the nut over the peg before it goes down around it
             goal = np.array([eef[0] + offset[0], eef[1] + offset[1], eef[2] + dz])
             return goal, yaw, _GRIP_CLOSE, 0.4 * self.speed
-        if self.phase == "release":
-            if self.phase_steps >= 8:
-                self._next("retreat")
-                return None
-            return self._sp_pos.copy(), self._sp_yaw, _GRIP_OPEN, self.speed
-        if self.phase == "retreat":
-            goal = self._sp_pos.copy()
-            goal[2] = p["carry_z"]
-            return goal, self._sp_yaw, _GRIP_OPEN, self.speed
-        return self._sp_pos.copy(), self._grasp_yaw, _GRIP_OPEN, self.speed  # give_up
+        return self._release_and_retreat(self._sp_yaw)
 
     # ----- actions ----------------------------------------------------------------------------
     def act(self, sim_env: Any) -> np.ndarray:
