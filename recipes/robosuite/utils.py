@@ -37,6 +37,7 @@ from rfmp_rl.envs.robosuite import (  # noqa: E402
     ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
     ROBOSUITE_OBJECT_DIMS,
+    ROBOSUITE_PROPRIO_KEYS,
     ROBOSUITE_TASKS,
     make_robosuite_env,
 )
@@ -65,6 +66,18 @@ def check_config(cfg: DictConfig) -> None:
 
 def pose_action(cfg: DictConfig) -> bool:
     return cfg.action_space == "abs_pose"
+
+
+def low_dim_keys(cfg: DictConfig) -> tuple[str, ...]:
+    """The low-dim keys of ``observation``: all four with state observations, robomimic's
+    proprioception alone (no object state) with images."""
+    return ROBOSUITE_PROPRIO_KEYS if cfg.obs == "image" else ROBOSUITE_LOW_DIM_KEYS
+
+
+def low_dim_sizes(cfg: DictConfig) -> list[list]:
+    sizes = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
+             "object": ROBOSUITE_OBJECT_DIMS[cfg.task]}
+    return [[k, sizes[k]] for k in low_dim_keys(cfg)]
 
 
 # ----- data ------------------------------------------------------------------------------------
@@ -105,7 +118,7 @@ def policy_episodes(raw: list[TensorDict], cfg: DictConfig) -> list[TensorDict]:
     out = []
     for ep in raw:
         n = ep.batch_size[0]
-        obs = torch.cat([ep["obs", k].float().reshape(n, -1) for k in ROBOSUITE_LOW_DIM_KEYS], -1)
+        obs = torch.cat([ep["obs", k].float().reshape(n, -1) for k in low_dim_keys(cfg)], -1)
         action = ep["action"].float()
         if pose_action(cfg):
             action = torch.cat([action[:, :3], hemisphere_continuous(action[:, 3:7]),
@@ -138,7 +151,8 @@ def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig, seed: int):
 
 # ----- model -----------------------------------------------------------------------------------
 def make_model_config(cfg: DictConfig) -> ModelConfig:
-    obj = ROBOSUITE_OBJECT_DIMS[cfg.task]
+    obs_keys = low_dim_sizes(cfg)
+    obs_dim = sum(d for _, d in obs_keys)
     if not pose_action(cfg):
         action_manifold = "R7"
     elif cfg.geometry == "riemannian":
@@ -152,10 +166,9 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         horizon=cfg.horizon,
         action_steps=cfg.action_steps,
         obs_horizon=cfg.obs_horizon,
-        obs_dim=3 + 4 + 2 + obj,
-        obs_manifold=f"R3 x S3 x R{2 + obj}",  # the eef quaternion is left unnormalised
-        obs_keys=[["robot0_eef_pos", 3], ["robot0_eef_quat", 4], ["robot0_gripper_qpos", 2],
-                  ["object", obj]],
+        obs_dim=obs_dim,
+        obs_manifold=f"R3 x S3 x R{obs_dim - 7}",  # the eef quaternion is left unnormalised
+        obs_keys=obs_keys,
         cameras={cam: [3, 84, 84] for cam in CAMERAS} if cfg.obs == "image" else {},
         crop_shape=[76, 76] if cfg.obs == "image" else None,
         unet_preset=cfg.preset,
@@ -201,7 +214,7 @@ def make_env(cfg: DictConfig, seeds: list[int]):
     return make_robosuite_env(
         cfg.task, [len(seeds)], obs_horizon=cfg.obs_horizon, action_space=cfg.action_space,
         cameras=tuple(c.removesuffix("_image") for c in CAMERAS) if cfg.obs == "image" else (),
-        max_steps=cfg.eval.max_steps, seeds=seeds,
+        low_dim_keys=low_dim_keys(cfg), max_steps=cfg.eval.max_steps, seeds=seeds,
     )
 
 

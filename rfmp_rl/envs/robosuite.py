@@ -5,7 +5,8 @@ controller at 20 Hz, robomimic's setting) and steps them in a loop as one batch 
 instance ``i`` is reset with seed ``seeds[i]`` (the same seed gives the same initial scene).
 
 Observations (robomimic's low-dim keys, each its own entry and concatenated in this order into
-``observation``):
+``observation``; ``low_dim_keys=ROBOSUITE_PROPRIO_KEYS`` leaves ``object`` out of it, robomimic's
+image setting):
 
 - ``robot0_eef_pos (N, 3)``: the gripper site position (world frame, m);
 - ``robot0_eef_quat (N, 4)``: the hand orientation, a unit quaternion ``xyzw`` (robosuite's
@@ -78,6 +79,7 @@ __all__ = [
     "ROBOSUITE_ACTION_DIMS",
     "ROBOSUITE_CAMERAS",
     "ROBOSUITE_LOW_DIM_KEYS",
+    "ROBOSUITE_PROPRIO_KEYS",
     "ROBOSUITE_CONTROL_FREQ",
     "OSC_POS_SCALE",
     "OSC_ROT_SCALE",
@@ -89,6 +91,8 @@ ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14
 ROBOSUITE_ACTION_DIMS = {"delta": 7, "abs_pose": 8}
 ROBOSUITE_CAMERAS = ("agentview", "robot0_eye_in_hand")
 ROBOSUITE_LOW_DIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
+#: robomimic's image observations keep only these low-dim keys (no object state).
+ROBOSUITE_PROPRIO_KEYS = ROBOSUITE_LOW_DIM_KEYS[:3]
 ROBOSUITE_CONTROL_FREQ = 20
 #: OSC_POSE delta output limits per unit action: metres and radians.
 OSC_POS_SCALE = 0.05
@@ -286,6 +290,9 @@ class RobosuiteEnv(EnvBase):
         cameras: camera names among `ROBOSUITE_CAMERAS`, or ``True`` for both; each adds an
             ``<name>_image (N, 3, H, W) uint8`` entry.
         image_size: camera height and width.
+        low_dim_keys: the low-dim keys concatenated into ``observation``, in this order (default
+            all four; `ROBOSUITE_PROPRIO_KEYS` for robomimic's image setting, which leaves the
+            object state out). Every key keeps its own entry either way.
         max_steps: episode limit (default `ROBOSUITE_MAX_STEPS` of the task).
         seeds: ``N`` reset seeds (default ``100000 + i``, disjoint from the demo seeds of
             `rfmp_rl.envs.robosuite_experts.generate_demos`); a ``seed`` entry ``(N,)`` in the
@@ -320,6 +327,7 @@ class RobosuiteEnv(EnvBase):
         *,
         cameras: Sequence[str] | bool = (),
         image_size: int = 84,
+        low_dim_keys: Sequence[str] = ROBOSUITE_LOW_DIM_KEYS,
         max_steps: int | None = None,
         seeds: Sequence[int] | None = None,
         hard_reset: bool = False,
@@ -336,6 +344,11 @@ class RobosuiteEnv(EnvBase):
             cameras = ()
         self.task, self.action_space_name = task, action_space
         self.cameras = tuple(cameras)
+        unknown = [k for k in low_dim_keys if k not in ROBOSUITE_LOW_DIM_KEYS]
+        if unknown or not low_dim_keys:
+            raise ValueError(f"RobosuiteEnv: low_dim_keys must be a non-empty subset of "
+                             f"{ROBOSUITE_LOW_DIM_KEYS}, got {list(low_dim_keys)}")
+        self.low_dim_keys = tuple(low_dim_keys)
         self.image_size = int(image_size)
         self.max_steps = int(ROBOSUITE_MAX_STEPS[task] if max_steps is None else max_steps)
         n = batch_size[0]
@@ -361,15 +374,19 @@ class RobosuiteEnv(EnvBase):
 
     @property
     def obs_dim(self) -> int:
-        """Size of ``observation``: 3 + 4 + 2 + the object state."""
-        return 9 + ROBOSUITE_OBJECT_DIMS[self.task]
+        """Size of ``observation``: the sizes of ``low_dim_keys`` (all four: 3 + 4 + 2 + the
+        object state)."""
+        return sum(self._key_dims()[k] for k in self.low_dim_keys)
+
+    def _key_dims(self) -> dict[str, int]:
+        return {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
+                "object": ROBOSUITE_OBJECT_DIMS[self.task]}
 
     # ----- specs -------------------------------------------------------------------------------
     def _make_specs(self) -> None:
         batch, dev = self.batch_size, self.device
         f32 = {"dtype": torch.float32, "device": dev}
-        dims = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
-                "object": ROBOSUITE_OBJECT_DIMS[self.task]}
+        dims = self._key_dims()
         spec = {keys.OBSERVATION: Unbounded((*batch, self.obs_dim), **f32)}
         spec.update({k: Unbounded((*batch, d), **f32) for k, d in dims.items()})
         for cam in self.cameras:
@@ -411,7 +428,7 @@ class RobosuiteEnv(EnvBase):
             "robot0_gripper_qpos": np.asarray(sim_obs["robot0_gripper_qpos"], dtype=np.float64),
             "object": object_state(self.sims[i], self.task),
         }
-        out[keys.OBSERVATION] = np.concatenate([out[k] for k in ROBOSUITE_LOW_DIM_KEYS])
+        out[keys.OBSERVATION] = np.concatenate([out[k] for k in self.low_dim_keys])
         for cam in self.cameras:
             image = np.asarray(sim_obs[f"{cam}_image"])[::-1]  # OpenGL rows are bottom-up
             out[f"{cam}_image"] = np.ascontiguousarray(image.transpose(2, 0, 1))

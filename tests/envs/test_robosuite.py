@@ -13,6 +13,7 @@ from torchrl.envs.utils import check_env_specs  # noqa: E402
 from rfmp_rl.envs.robosuite import (  # noqa: E402
     ROBOSUITE_MAX_STEPS,
     ROBOSUITE_OBJECT_DIMS,
+    ROBOSUITE_PROPRIO_KEYS,
     RobosuiteEnv,
     make_robosuite_env,
 )
@@ -49,6 +50,22 @@ def test_bad_arguments():
         RobosuiteEnv("Lift", [1], "joint_velocity")
     with pytest.raises(ValueError, match="batch_size"):
         RobosuiteEnv("Lift", [2, 2])
+    with pytest.raises(ValueError, match="low_dim_keys"):
+        RobosuiteEnv("Lift", [1], low_dim_keys=("robot0_eef_pos", "cube_pos"))
+
+
+@pytest.mark.slow
+def test_proprio_observation_leaves_the_object_out():
+    env = RobosuiteEnv("PickPlaceCan", [1], low_dim_keys=ROBOSUITE_PROPRIO_KEYS)
+    try:
+        check_env_specs(env)
+        td = reset(env, 7)
+        assert env.obs_dim == 9 and td["observation"].shape == (1, 9)
+        expected = torch.cat([td[k] for k in ROBOSUITE_PROPRIO_KEYS], -1)
+        assert torch.equal(td["observation"], expected)
+        assert td["object"].shape == (1, ROBOSUITE_OBJECT_DIMS["PickPlaceCan"])  # still its own key
+    finally:
+        env.close()
 
 
 @pytest.mark.slow

@@ -70,6 +70,13 @@ def test_variant_trains_and_evaluates(recipe, data_dir, tmp_path, task, algo, ob
         assert float(row["quat_norm_err"]) <= 1e-5  # every executed quaternion on S^3
     if action_space == "abs_pose" and geometry == "euclidean":
         assert math.isfinite(float(row["quat_norm_err"]))  # the raw R^8 output, before fixing
+    model_cfg = recipe["utils"].make_model_config(cfg)
+    names = [k for k, _ in model_cfg.obs_keys]
+    if obs == "image":  # robomimic's image setting: proprioception + cameras, no object state
+        assert names == ["robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos"]
+        assert model_cfg.obs_dim == 9 and set(model_cfg.cameras) == set(recipe["utils"].CAMERAS)
+    else:
+        assert names[-1] == "object" and not model_cfg.cameras
 
 
 def test_eval_script_uses_its_own_seeds(recipe, data_dir, tmp_path):
