@@ -1,0 +1,56 @@
+"""recipes/robosuite/summary.py: the per-run success table, read from the runs' own files."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+@pytest.fixture(scope="module")
+def summary():
+    spec = importlib.util.spec_from_file_location(
+        "robosuite_summary", ROOT / "recipes" / "robosuite" / "summary.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(folder: Path, algo: str, success: dict[int, float], t0: float = 0.0) -> Path:
+    (folder / "eval").mkdir(parents=True)
+    cfg = {"task": "Lift", "algo": algo, "obs": "state", "action_space": "delta",
+           "geometry": "riemannian", "t0_fraction": t0, "optim": {"lr": 1e-3}}
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (folder / "history.json").write_text(json.dumps(
+        [{"step": 500, "minutes": 4.0, "train": 1.0, "val": 0.5},
+         {"step": 900, "minutes": 7.2, "train": 0.5, "val": 0.25}]))
+    rows = ["task,algo,action_space,nfe,t_end,success"]
+    rows += [f"Lift,{algo},delta,{n},1.0,{s}" for n, s in success.items()]
+    rows.append(f"Lift,{algo},delta,1,1.6,0.0")  # other end times are not in the table
+    (folder / "eval" / "eval.csv").write_text("\n".join(rows) + "\n")
+    return folder
+
+
+def test_table_has_one_row_per_run_and_every_nfe(summary, tmp_path):
+    a = _run(tmp_path / "a", "dp", {1: 0.0, 3: 0.96})
+    b = _run(tmp_path / "b", "srfmp", {1: 0.98, 2: 1.0}, t0=0.3)
+    out = tmp_path / "table.md"
+    summary.main([str(a), str(b), "--out", str(out)])
+    lines = [line for line in out.read_text().splitlines() if line.startswith("| Lift")]
+    assert lines[0].split(" | ")[1:8] == ["DDIM", "state", "delta", "0.00", "-", "0.96",
+                                          "900 steps, 7 min, lr 0.001"]
+    assert lines[1].split(" | ")[1:8] == ["SRFMP", "state", "delta", "0.98", "1.00", "-",
+                                          "900 steps, 7 min, lr 0.001, t0_fraction 0.3"]
+    assert "Command: `python recipes/robosuite/summary.py" in out.read_text()
+
+
+def test_missing_file_names_it(summary, tmp_path):
+    run = _run(tmp_path / "a", "rfmp", {1: 0.5})
+    (run / "history.json").unlink()
+    with pytest.raises(FileNotFoundError, match="history.json"):
+        summary.main([str(run)])
