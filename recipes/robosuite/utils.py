@@ -36,9 +36,9 @@ from rfmp_rl.envs.robosuite import (  # noqa: E402
     ROBOSUITE_CONTROL_FREQ,
     ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
-    ROBOSUITE_OBJECT_DIMS,
     ROBOSUITE_PROPRIO_KEYS,
     ROBOSUITE_TASKS,
+    low_dim_key_dims,
     make_robosuite_env,
 )
 from rfmp_rl.eval.metrics import jerk  # noqa: E402
@@ -75,8 +75,7 @@ def low_dim_keys(cfg: DictConfig) -> tuple[str, ...]:
 
 
 def low_dim_sizes(cfg: DictConfig) -> list[list]:
-    sizes = {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
-             "object": ROBOSUITE_OBJECT_DIMS[cfg.task]}
+    sizes = low_dim_key_dims(cfg.task)
     return [[k, sizes[k]] for k in low_dim_keys(cfg)]
 
 

@@ -80,6 +80,7 @@ __all__ = [
     "ROBOSUITE_CAMERAS",
     "ROBOSUITE_LOW_DIM_KEYS",
     "ROBOSUITE_PROPRIO_KEYS",
+    "low_dim_key_dims",
     "ROBOSUITE_CONTROL_FREQ",
     "OSC_POS_SCALE",
     "OSC_ROT_SCALE",
@@ -94,6 +95,12 @@ ROBOSUITE_LOW_DIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_q
 #: robomimic's image observations keep only these low-dim keys (no object state).
 ROBOSUITE_PROPRIO_KEYS = ROBOSUITE_LOW_DIM_KEYS[:3]
 ROBOSUITE_CONTROL_FREQ = 20
+
+
+def low_dim_key_dims(task: str) -> dict[str, int]:
+    """Size of each low-dim observation key of ``task``, in `ROBOSUITE_LOW_DIM_KEYS` order."""
+    return {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
+            "object": ROBOSUITE_OBJECT_DIMS[task]}
 #: OSC_POSE delta output limits per unit action: metres and radians.
 OSC_POS_SCALE = 0.05
 OSC_ROT_SCALE = 0.5
@@ -376,17 +383,13 @@ class RobosuiteEnv(EnvBase):
     def obs_dim(self) -> int:
         """Size of ``observation``: the sizes of ``low_dim_keys`` (all four: 3 + 4 + 2 + the
         object state)."""
-        return sum(self._key_dims()[k] for k in self.low_dim_keys)
-
-    def _key_dims(self) -> dict[str, int]:
-        return {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
-                "object": ROBOSUITE_OBJECT_DIMS[self.task]}
+        return sum(low_dim_key_dims(self.task)[k] for k in self.low_dim_keys)
 
     # ----- specs -------------------------------------------------------------------------------
     def _make_specs(self) -> None:
         batch, dev = self.batch_size, self.device
         f32 = {"dtype": torch.float32, "device": dev}
-        dims = self._key_dims()
+        dims = low_dim_key_dims(self.task)
         spec = {keys.OBSERVATION: Unbounded((*batch, self.obs_dim), **f32)}
         spec.update({k: Unbounded((*batch, d), **f32) for k, d in dims.items()})
         for cam in self.cameras:
