@@ -217,15 +217,31 @@ def make_env(cfg: DictConfig, seeds: list[int]):
     )
 
 
+IMAGE_EVAL_ENVS = 10  # rendering envs stepped at once by default: 50 held over 20 GB here
+
+
+def eval_num_envs(cfg: DictConfig) -> int:
+    """Envs stepped side by side: ``eval.num_envs``, else every seed at once for state policies
+    and `IMAGE_EVAL_ENVS` for image policies (each rendering robosuite env holds ~0.4 GB and the
+    rollout keeps every frame)."""
+    n = cfg.eval.get("num_envs")
+    if n is None:
+        n = IMAGE_EVAL_ENVS if cfg.obs == "image" else int(cfg.eval.seeds)
+    if int(n) < 1:
+        raise ValueError(f"eval.num_envs must be >= 1, got {n}")
+    return int(n)
+
+
 @torch.no_grad()
-def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env) -> dict:
+def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env, chunk: int = 0) -> dict:
     """One closed-loop evaluation over the env's seeds (one batched env, reset here); the row's
-    ``per_seed`` lists each seed's success (0/1, in the env's seed order)."""
+    ``per_seed`` lists each seed's success (0/1, in the env's seed order). ``chunk`` offsets the
+    torch seed of the prior samples when the seeds are split over several envs."""
     actor = make_env_actor(model, cfg, nfe, t_end)
     mode = (ExplorationType.DETERMINISTIC if cfg.eval.sampling == "deterministic"
             else ExplorationType.RANDOM)
     max_steps = int(cfg.eval.max_steps or ROBOSUITE_MAX_STEPS[cfg.task])
-    torch.manual_seed(int(cfg.seed))
+    torch.manual_seed(int(cfg.seed) + chunk)
     start = time.perf_counter()
     with set_exploration_type(mode):
         out = env.rollout(max_steps, actor, break_when_any_done=False, break_when_all_done=True)
@@ -240,6 +256,7 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env) -> dict:
             jerks.append(float(jerk(executed[:, :3], CONTROL_DT)))  # position part (m or units)
         if pose_action(cfg):
             manifold_err = max(manifold_err, float((executed[:, 3:7].norm(dim=-1) - 1).abs().max()))
+    del out
     return {
         "task": cfg.task,
         "algo": cfg.algo,
@@ -254,31 +271,62 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env) -> dict:
         "seconds": seconds,
         "seeds": f"{env.base_env.seeds[0]}-{env.base_env.seeds[-1]}",
         "per_seed": [int(v) for v in success.tolist()],
+        "per_seed_jerk": jerks,
     }
 
 
+def _merge(parts: list[dict]) -> dict:
+    """One row from the rows of consecutive seed chunks (same NFE and T)."""
+    if len(parts) == 1:
+        return parts[0]
+    per_seed = [v for p in parts for v in p["per_seed"]]
+    jerks = [v for p in parts for v in p["per_seed_jerk"]]
+    row = dict(parts[0])
+    row.update(
+        success=sum(per_seed) / len(per_seed),
+        jerk=sum(jerks) / len(jerks) if jerks else float("nan"),
+        quat_norm_err=max(p["quat_norm_err"] for p in parts),  # nan stays nan (not a pose task)
+        env_steps=sum(p["env_steps"] for p in parts),
+        seconds=sum(p["seconds"] for p in parts),
+        seeds=f"{parts[0]['seeds'].split('-')[0]}-{parts[-1]['seeds'].split('-')[-1]}",
+        per_seed=per_seed,
+        per_seed_jerk=jerks,
+    )
+    return row
+
+
 def sweep(model, cfg: DictConfig, progress=None) -> list[dict]:
-    """Every (NFE, T) of ``cfg.eval`` on ``eval.seeds`` seeds; the env is built once."""
+    """Every (NFE, T) of ``cfg.eval`` on ``eval.seeds`` seeds, stepped `eval_num_envs` at a time
+    (one env per chunk of seeds, built once for all settings)."""
     seeds = list(range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds)))
-    env = make_env(cfg, seeds)
+    size = eval_num_envs(cfg)
+    chunks = [seeds[i:i + size] for i in range(0, len(seeds), size)]
+    settings = list(sweep_settings(model, cfg.eval.nfes, cfg.eval.t_ends,
+                                   cfg.eval.get("time_table")))
+    parts: list[list[dict]] = [[] for _ in settings]
+    for c, chunk in enumerate(chunks):
+        env = make_env(cfg, chunk)
+        try:
+            for k, (nfe, t_end) in enumerate(settings):
+                parts[k].append(evaluate(model, cfg, nfe, t_end, env, chunk=c))
+                if len(chunks) > 1:
+                    print(f"  NFE={nfe} T={t_end:g}: seeds {chunk[0]}-{chunk[-1]} done "
+                          f"({sum(parts[k][-1]['per_seed'])}/{len(chunk)} successes)")
+        finally:
+            env.close()
     rows = []
-    try:
-        for nfe, t_end in sweep_settings(model, cfg.eval.nfes, cfg.eval.t_ends,
-                                         cfg.eval.get("time_table")):
-            row = evaluate(model, cfg, nfe, t_end, env)
-            rows.append(row)
-            if progress is not None:
-                progress(row)
-    finally:
-        env.close()
+    for k in range(len(settings)):
+        rows.append(_merge(parts[k]))
+        if progress is not None:
+            progress(rows[-1])
     return rows
 
 
 def write_tables(rows: list[dict], out_dir: Path, title: str, command: str) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     with open(out_dir / "eval.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=[k for k in rows[0] if k != "per_seed"],
-                                extrasaction="ignore")
+        fields = [k for k in rows[0] if not k.startswith("per_seed")]
+        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
         writer.writeheader()
         writer.writerows(rows)
     lines = [f"## {title}", "", f"Command: `{command}`", "",

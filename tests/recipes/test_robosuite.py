@@ -88,6 +88,19 @@ def test_eval_script_uses_its_own_seeds(recipe, data_dir, tmp_path):
         "eval.max_steps=8", f"eval.out={tmp_path / 'ev'}", "threads=1"]))
     assert [r["nfe"] for r in rows] == [1, 2] and all(r["seeds"] == "500-502" for r in rows)
     assert (tmp_path / "ev" / "eval.md").is_file()
+    # The same seeds stepped two envs at a time (chunks 500-501, 502): one row per setting over
+    # all three seeds; with the prior's mode the episodes do not depend on the batching.
+    common = [f"checkpoint={run / 'best.pt'}", "eval.seeds=3", "eval.seed_start=500",
+              "eval.nfes=[1]", "eval.max_steps=8", "eval.sampling=deterministic", "threads=1"]
+    whole = recipe["eval"].evaluate_checkpoint(_cfg([*common, f"eval.out={tmp_path / 'e1'}"]))
+    split = recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.num_envs=2",
+                                                     f"eval.out={tmp_path / 'e2'}"]))
+    (a,), (b,) = whole, split
+    assert b["seeds"] == "500-502" and len(b["per_seed"]) == 3 and b["env_steps"] == a["env_steps"]
+    assert b["per_seed"] == a["per_seed"] and b["success"] == a["success"]
+    assert len(b["per_seed_jerk"]) == 3 and math.isclose(b["jerk"], a["jerk"], rel_tol=1e-4)
+    with pytest.raises(ValueError, match="eval.num_envs"):
+        recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.num_envs=0"]))
 
 
 def test_missing_data_without_generation_names_the_file(recipe, tmp_path):
