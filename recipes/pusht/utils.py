@@ -196,9 +196,11 @@ def write_tables(
         writer = csv.DictWriter(f, fieldnames=list(rows[0]))
         writer.writeheader()
         writer.writerows(rows)
+    sphere = any(not math.isnan(float(r["manifold_err"])) for r in rows)
+    unit = "S^2 coords/s^3" if sphere else "px/s^3"  # the executed actions' own units
     lines = [f"## {title}", "", f"Command: `{command}`", "",
              "| algo | NFE | T | T reached | score (max coverage) | DP score | success | "
-             "jerk (px/s^3) | on-S^2 err | env steps | s |",
+             f"jerk ({unit}) | on-S^2 err | env steps | s |",
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         err = "-" if math.isnan(r["manifold_err"]) else f"{r['manifold_err']:.1e}"

@@ -63,6 +63,8 @@ def test_every_variant_trains_and_evaluates(recipe, tmp_path, algo, obs, space):
         assert float(row["manifold_err"]) <= 1e-5
     if space == "sphere" and algo == "dp":  # projected after sampling, as the paper does
         assert float(row["manifold_err"]) <= 1e-5
+    unit = "S^2 coords/s^3" if space == "sphere" else "px/s^3"  # jerk in the actions' units
+    assert f"jerk ({unit})" in (run / "eval" / "eval.md").read_text()
 
 
 def test_eval_script_reevaluates_a_checkpoint_with_its_own_seed_range(recipe, tmp_path):
