@@ -119,14 +119,20 @@ def validation_loss(model, loss_fn, rb, batches: int, seed: int) -> float:
 class FitResult:
     steps: int
     minutes: float
-    best_val: float
+    best_val: float  # the lowest validation loss, or the highest rollout score with rollout_score
     best_step: int
 
 
-def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None) -> FitResult:
+def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
+        rollout_score=None) -> FitResult:
     """Train ``model`` on ``rb`` (AdamW, EMA, budget-aware lr), validate the EMA weights every
     ``train.val_every`` steps on ``val_rb`` and keep ``best.pt`` (lowest validation loss) and
-    ``last.pt``; ``history.json`` and the CSV logs record the curves."""
+    ``last.pt``; ``history.json`` and the CSV logs record the curves.
+
+    ``rollout_score(ema_model) -> float`` (higher is better; e.g. the mean task score over
+    validation seeds) is also computed at every validation and then chooses ``best.pt`` instead
+    of the loss, as Diffusion Policy keeps its checkpoints by rollout score. It runs with the
+    global RNG state saved and restored, so training draws the same numbers either way."""
     ema = EMA(model, decay=cfg.optim.ema_decay)
     loss_fn = make_loss(model, camera_keys)
     val_loss_fn = make_loss(ema.module, camera_keys)
@@ -163,19 +169,28 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None) -> 
         if step % cfg.train.val_every == 0 or step == cfg.train.steps or stop:
             val = validation_loss(ema.module, val_loss_fn, val_rb, cfg.train.val_batches, cfg.seed)
             logger.log_scalar("val/loss", val, step=step)
-            history.append({"step": step, "minutes": minutes, "train": running, "val": val})
-            if val < best:
-                best, best_step = val, step
+            entry = {"step": step, "minutes": minutes, "train": running, "val": val}
+            criterion, scores = val, {}
+            if rollout_score is not None:
+                with torch.random.fork_rng():
+                    score = float(rollout_score(ema.module))
+                logger.log_scalar("val/rollout_score", score, step=step)
+                entry["rollout"] = scores["rollout_score"] = score
+                criterion = -score
+            history.append(entry)
+            if criterion < best:
+                best, best_step = criterion, step
                 save_checkpoint(run_dir / "best.pt", model, ema, config, step=step, val_loss=val,
-                                train_minutes=minutes)
+                                train_minutes=minutes, **scores)
         if stop:
             print(f"stopping at step {step}: train.max_minutes={cfg.train.max_minutes} reached")
             break
     minutes = (time.perf_counter() - start) / 60
     save_checkpoint(run_dir / "last.pt", model, ema, config, step=step, train_minutes=minutes)
     (run_dir / "history.json").write_text(json.dumps(history, indent=1))
-    print(f"trained {step} steps in {minutes:.1f} min; best validation loss {best:.4f} "
-          f"at step {best_step}")
+    what = "rollout score" if rollout_score is not None else "validation loss"
+    best = -best if rollout_score is not None else best
+    print(f"trained {step} steps in {minutes:.1f} min; best {what} {best:.4f} at step {best_step}")
     return FitResult(step, minutes, best, best_step)
 
 

@@ -21,39 +21,72 @@ import yaml
 
 TASK_KEYS = ("algo", "obs", "space", "prior", "preset", "down_dims", "horizon", "action_steps",
              "obs_horizon", "time_max", "t0_fraction", "seed", "threads")
+DEFAULTS = Path(__file__).with_name("config.yaml")
+NOT_TRAINING = ("out_dir", "checkpoint", "defaults", "hydra")  # not part of what a run learned
 
 
-def train_command(cfg: dict) -> str:
-    overrides = [f"{k}={cfg[k]}" for k in ("algo", "obs", "space") if k in cfg]
-    if cfg.get("space") == "sphere":
-        overrides.append(f"prior={cfg['prior']}")
-    overrides += [f"threads={cfg['threads']}", f"optim.lr={cfg['optim']['lr']}",
-                  f"train.steps={cfg['train']['steps']}",
-                  f"train.max_minutes={cfg['train']['max_minutes']}"]
-    if cfg.get("down_dims"):
-        overrides.append(f"down_dims={cfg['down_dims']}")
-    for key, default in (("time_max", 1.0), ("t0_fraction", 0.0), ("prior_repeat", True)):
-        if key in cfg and cfg[key] != default:
-            overrides.append(f"{key}={cfg[key]}")
-    return ".venv/bin/python recipes/pusht/train.py " + " ".join(overrides)
+def _leaves(tree: dict, prefix: str = "") -> dict:
+    """Flatten a nested config into ``{"optim.lr": 0.001, ...}``."""
+    out = {}
+    for key, value in tree.items():
+        if isinstance(value, dict):
+            out.update(_leaves(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
-def main() -> None:
+def _override(key: str, value) -> str:
+    text = f"{key}={yaml.safe_dump(value, default_flow_style=True).strip()}"
+    text = text.removesuffix("\n...").replace(" ", "").replace("'", "")
+    return f"'{text}'" if any(c in text for c in "[]{}") else text
+
+
+def train_command(cfg: dict, defaults: dict | None = None) -> str:
+    """The training command that reproduces a run: ``algo obs space`` and every other setting
+    that differs from the recipe's ``config.yaml`` (batch size, evaluation grid, ...)."""
+    if defaults is None:
+        defaults = yaml.safe_load(DEFAULTS.read_text())
+    base = _leaves({k: v for k, v in defaults.items() if k not in NOT_TRAINING})
+    mine = _leaves({k: v for k, v in cfg.items() if k not in NOT_TRAINING})
+    keys = [k for k in ("algo", "obs", "space") if k in mine]
+    keys += [k for k in mine if k not in keys and (k not in base or mine[k] != base[k])]
+    return ".venv/bin/python recipes/pusht/train.py " + " ".join(
+        _override(k, mine[k]) for k in keys)
+
+
+def _read(path: Path, what: str) -> str:
+    if not path.is_file():
+        raise FileNotFoundError(f"report.py: {path} is missing ({what})")
+    return path.read_text()
+
+
+def main(argv: list[str] | None = None) -> str:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--out", type=Path, default=None)
     parser.add_argument("--notes", type=Path, default=None, help="markdown appended verbatim")
     parser.add_argument("--also", type=Path, nargs="*", default=[],
                         help="further evaluation folders (eval.py outputs) appended as tables")
-    args = parser.parse_args()
+    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
     sections, summary = [], {}
     for run in args.runs:
-        cfg = yaml.safe_load((run / "config.yaml").read_text())
-        history = json.loads((run / "history.json").read_text())
-        best = min(history, key=lambda h: h["val"])
+        cfg = yaml.safe_load(_read(run / "config.yaml", "the run's configuration"))
+        history = json.loads(_read(run / "history.json", "the run's validation curve"))
+        by_rollout = all("rollout" in h for h in history)
+        best = (max(history, key=lambda h: h["rollout"]) if by_rollout
+                else min(history, key=lambda h: h["val"]))
         last = history[-1]
-        with open(run / "eval" / "eval.csv") as f:
-            rows = list(csv.DictReader(f))
+        if by_rollout:
+            chosen = (f"best validation rollout score {best['rollout']:.3f} (mean max coverage "
+                      f"over seeds {cfg['train']['select_seed_start']}-"
+                      f"{cfg['train']['select_seed_start'] + cfg['train']['select_seeds'] - 1}, "
+                      f"NFE {cfg['train']['select_nfe']}, T={cfg['train']['select_t_end']:g})")
+        else:
+            chosen = f"best validation loss {best['val']:.4f}"
+        table = _read(run / "eval" / "eval.csv", "eval.py's table")
+        rows = list(csv.DictReader(table.splitlines()))
         name = f"{cfg['algo']} {cfg['obs']} {cfg['space']}" + (
             f" ({cfg['prior']} prior)" if cfg["space"] == "sphere" and cfg["algo"] != "dp" else "")
         if cfg["algo"] == "srfmp" and float(cfg.get("time_max", 1.0)) != 1.0:
@@ -69,16 +102,16 @@ def main() -> None:
             f"## {name}",
             "",
             f"Training: `{train_command(cfg)}` — {last['step']} steps in {last['minutes']:.1f} "
-            f"min on this 2-core CPU (best validation loss {best['val']:.4f} at step "
-            f"{best['step']}, {best['minutes']:.1f} min; that checkpoint is evaluated).",
+            f"min on this 2-core CPU ({chosen} at step {best['step']}, "
+            f"{best['minutes']:.1f} min; that checkpoint is evaluated).",
             "",
             "Task settings: " + ", ".join(f"{k}={cfg.get(k)}" for k in TASK_KEYS if k in cfg),
             "",
-            (run / "eval" / "eval.md").read_text().replace("## ", "### ", 1),
+            _read(run / "eval" / "eval.md", "eval.py's table").replace("## ", "### ", 1),
         ]
     settings = sorted({s for v in summary.values() for s in v}, key=lambda s: (s[1], s[0]))
     head = ["# Push-T results", "",
-            "Generated by `python recipes/pusht/report.py " + " ".join(sys.argv[1:]) + "`.", "",
+            "Generated by `python recipes/pusht/report.py " + " ".join(argv) + "`.", "",
             "Score = mean over the evaluation seeds of the maximum goal coverage within 500 steps "
             "(early stop at 95%), the paper's protocol.", "",
             "| policy | " + " | ".join(f"NFE {n}, T={t:g}" for n, t in settings) + " |",
@@ -92,10 +125,11 @@ def main() -> None:
     if args.also:
         text += "\n## Further evaluations\n"
         for folder in args.also:
-            text += "\n" + (folder / "eval.md").read_text().replace("## ", "### ", 1)
+            text += "\n" + _read(folder / "eval.md", "eval.py's table").replace("## ", "### ", 1)
     print(text)
     if args.out:
         args.out.write_text(text)
+    return text
 
 
 if __name__ == "__main__":

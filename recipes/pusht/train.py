@@ -5,8 +5,10 @@ Policy's human demonstrations, then evaluate the best checkpoint.
     python recipes/pusht/train.py algo=rfmp space=sphere prior=wrapped
 
 Writes to ``runs/pusht/<algo>_<obs>_<space>_<time>/``: ``best.pt`` (the EMA weights of the best
-validation loss), ``last.pt``, ``logs/`` (TorchRL CSV logger: train loss, lr, validation loss),
-and, with ``eval.final_eval=true``, ``eval/`` (eval.csv, eval.md, eval.png) from `eval.py`'s sweep.
+validation loss, or of the best rollout score on the selection seeds with
+``train.select_by=rollout``), ``last.pt``, ``logs/`` (TorchRL CSV logger: train loss, lr,
+validation loss and rollout score), and, with ``eval.final_eval=true``, ``eval/`` (eval.csv,
+eval.md, eval.png) from `eval.py`'s sweep.
 """
 
 from __future__ import annotations
@@ -24,6 +26,7 @@ from utils import (  # noqa: I001
     make_model,
     make_replay_buffer,
     make_stores,
+    selection_score,
     sweep,
     write_tables,
 )
@@ -50,7 +53,7 @@ def train(cfg: DictConfig) -> Path:
     n_params = sum(p.numel() for p in model.parameters())
     print(f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space}): {n_params / 1e6:.2f}M parameters, "
           f"{len(train_store)} training steps in {train_store.num_episodes} episodes")
-    result = fit(model, rb, val_rb, cfg, run_dir)
+    result = fit(model, rb, val_rb, cfg, run_dir, rollout_score=selection_score(cfg))
     step, minutes = result.steps, result.minutes
 
     if cfg.eval.final_eval:

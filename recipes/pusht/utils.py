@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import torch
-from omegaconf import DictConfig
+from omegaconf import DictConfig, OmegaConf
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the shared pieces
@@ -50,6 +50,19 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"obs must be 'state' or 'image', got {cfg.obs!r}")
     if cfg.space not in ("euclidean", "sphere"):
         raise ValueError(f"space must be 'euclidean' or 'sphere', got {cfg.space!r}")
+    train = cfg.get("train", {})
+    if train.get("select_by", "val_loss") not in ("val_loss", "rollout"):
+        raise ValueError(f"train.select_by must be 'val_loss' or 'rollout', got "
+                         f"{train.select_by!r}")
+    if train.get("select_by") == "rollout":
+        chosen = range(int(train.select_seed_start),
+                       int(train.select_seed_start) + int(train.select_seeds))
+        tested = range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds))
+        if len(chosen) < 1 or (chosen.start < tested.stop and tested.start < chosen.stop):
+            raise ValueError(
+                f"train.select_seeds/select_seed_start give seeds {chosen.start}-{chosen.stop - 1}"
+                f", which must be at least one and must not overlap the evaluation seeds "
+                f"{tested.start}-{tested.stop - 1} (eval.seed_start, eval.seeds)")
 
 
 # ----- data ------------------------------------------------------------------------------------
@@ -172,6 +185,22 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float) -> dict:
         "seconds": seconds,
         "seeds": f"{seeds[0]}-{seeds[-1]}",
     }
+
+
+def selection_score(cfg: DictConfig):
+    """``train.select_by=rollout``: the function `fit` calls on the EMA model at every
+    validation, the mean max coverage over the selection seeds at ``train.select_nfe`` /
+    ``select_t_end`` (seeds disjoint from the evaluation ones, `check_config`); else None."""
+    if cfg.train.get("select_by", "val_loss") != "rollout":
+        return None
+    chosen = OmegaConf.merge(cfg, {"eval": {"seeds": cfg.train.select_seeds,
+                                            "seed_start": cfg.train.select_seed_start}})
+
+    def score(model) -> float:
+        return evaluate(model, chosen, int(cfg.train.select_nfe),
+                        float(cfg.train.select_t_end))["score"]
+
+    return score
 
 
 def sweep(model, cfg: DictConfig, progress=None) -> list[dict]:

@@ -4,12 +4,16 @@ a few steps, keeps a checkpoint and evaluates 2 seeds; eval.py re-evaluates a ch
 from __future__ import annotations
 
 import csv
+import json
 import math
 import os
 from pathlib import Path
 
 import pytest
+import torch
 from recipe_loader import compose, load_recipe
+
+from rfmp_rl.checkpoint import load_checkpoint
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = ROOT / "recipes" / "pusht"
@@ -84,3 +88,33 @@ def test_eval_script_reevaluates_a_checkpoint_with_its_own_seed_range(recipe, tm
 def test_eval_script_names_a_missing_checkpoint(recipe, tmp_path):
     with pytest.raises(SystemExit, match="no such checkpoint"):
         recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={tmp_path / 'nope.pt'}"]))
+
+
+def test_rollout_selection_keeps_the_checkpoint_with_the_best_selection_score(recipe, tmp_path):
+    # Diffusion Policy keeps checkpoints by rollout score; ours rolls the EMA policy out on
+    # seeds disjoint from the evaluation ones at every validation.
+    cfg = _cfg(["algo=srfmp", f"out_dir={tmp_path}", *TINY, "train.steps=3",
+                "train.select_by=rollout", "train.select_seeds=2", "train.select_seed_start=5",
+                "eval.final_eval=false"])
+    run = recipe["train"].train(cfg)
+    history = json.loads((run / "history.json").read_text())
+    assert [h["step"] for h in history] == [1, 2, 3]
+    assert all(0.0 <= h["rollout"] <= 1.0 for h in history)
+    best = max(history, key=lambda h: h["rollout"])  # the first of equal scores
+    extra = torch.load(run / "best.pt", weights_only=False)["extra"]
+    assert extra["step"] == best["step"] and extra["rollout_score"] == best["rollout"]
+    logged = next(run.glob("logs/**/rollout_score.csv")).read_text().split()  # "step,value"
+    assert [float(line.split(",")[1]) for line in logged] == pytest.approx(
+        [h["rollout"] for h in history])
+    # the same seeds and settings score the saved EMA weights the same again
+    model, _ = load_checkpoint(run / "best.pt", use_ema=True)
+    again = recipe["utils"].selection_score(cfg)(model.eval())
+    assert again == pytest.approx(best["rollout"], abs=1e-6)
+
+
+def test_rollout_selection_seeds_must_not_overlap_the_evaluation_seeds(recipe):
+    cfg = _cfg(["train.select_by=rollout", "train.select_seed_start=100040"])
+    with pytest.raises(ValueError, match=r"100040-100059.*overlap.*100000-100049"):
+        recipe["utils"].check_config(cfg)
+    with pytest.raises(ValueError, match="train.select_by"):
+        recipe["utils"].check_config(_cfg(["train.select_by=loss"]))

@@ -1,0 +1,94 @@
+"""recipes/pusht/report.py: the results file is rebuilt from the runs' own files, and each run's
+training command reproduces every setting that differs from the recipe's config."""
+
+from __future__ import annotations
+
+import copy
+import importlib.util
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[2]
+DEFAULTS = yaml.safe_load((ROOT / "recipes" / "pusht" / "config.yaml").read_text())
+
+
+@pytest.fixture(scope="module")
+def report():
+    spec = importlib.util.spec_from_file_location(
+        "pusht_report", ROOT / "recipes" / "pusht" / "report.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _run(folder: Path, scores: dict[tuple[int, float], float], **changes) -> Path:
+    cfg = copy.deepcopy(DEFAULTS)
+    for key, value in changes.items():
+        *parents, leaf = key.split("__")
+        node = cfg
+        for parent in parents:
+            node = node[parent]
+        node[leaf] = value
+    cfg["out_dir"] = str(folder)
+    (folder / "eval").mkdir(parents=True)
+    (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
+    (folder / "history.json").write_text(json.dumps(
+        [{"step": 100, "minutes": 1.0, "train": 1.0, "val": 0.3},
+         {"step": 200, "minutes": 2.5, "train": 0.5, "val": 0.4}]))
+    rows = ["algo,nfe,t_end,score"] + [f"{cfg['algo']},{n},{t},{s}" for (n, t), s in
+                                       scores.items()]
+    (folder / "eval" / "eval.csv").write_text("\n".join(rows) + "\n")
+    (folder / "eval" / "eval.md").write_text("## Push-T eval\n\n| table |\n")
+    return folder
+
+
+def test_command_lists_exactly_the_settings_that_differ_from_the_recipe(report):
+    cfg = copy.deepcopy(DEFAULTS)
+    cfg.update(obs="image", t0_fraction=0.3, time_max=2.0, out_dir="runs/x")
+    cfg["train"]["batch_size"] = 64
+    cfg["eval"]["nfes"] = [1, 3]
+    cfg["eval"]["time_table"] = []
+    command = report.train_command(cfg)
+    words = command.split()
+    assert words[:2] == [".venv/bin/python", "recipes/pusht/train.py"]
+    assert words[2:5] == ["algo=srfmp", "obs=image", "space=euclidean"]
+    assert set(words[5:]) == {"t0_fraction=0.3", "time_max=2.0", "train.batch_size=64",
+                              "'eval.nfes=[1,3]'", "'eval.time_table=[]'"}
+
+
+def test_report_collects_runs_into_one_table_with_their_commands(report, tmp_path):
+    a = _run(tmp_path / "a", {(1, 1.0): 0.9, (3, 1.0): 0.8}, t0_fraction=0.3)
+    b = _run(tmp_path / "b", {(1, 1.0): 0.1}, algo="dp", train__batch_size=64)
+    notes = tmp_path / "notes.md"
+    notes.write_text("## Notes\nkept verbatim\n")
+    out = tmp_path / "out.md"
+    text = report.main([str(a), str(b), "--notes", str(notes), "--out", str(out)])
+    assert out.read_text() == text
+    rows = [line for line in text.splitlines() if line.startswith("| srfmp") or
+            line.startswith("| dp")]
+    assert rows[0].endswith("| 0.900 | 0.800 |") and "0.3 of training times at t = 0" in rows[0]
+    assert rows[1].endswith("| 0.100 | - |")
+    assert "train.py algo=dp obs=state space=euclidean train.batch_size=64`" in text
+    assert "best validation loss 0.3000 at step 100" in text and "200 steps in 2.5 min" in text
+    assert text.endswith("## Notes\nkept verbatim\n")
+
+
+def test_a_missing_run_file_is_named(report, tmp_path):
+    run = _run(tmp_path / "a", {(1, 1.0): 0.5})
+    (run / "eval" / "eval.csv").unlink()
+    with pytest.raises(FileNotFoundError, match=r"eval\.csv is missing"):
+        report.main([str(run)])
+
+
+def test_a_rollout_selected_run_names_its_selection_score_and_seeds(report, tmp_path):
+    run = _run(tmp_path / "a", {(1, 1.0): 0.5}, train__select_by="rollout")
+    history = json.loads((run / "history.json").read_text())
+    history[0]["rollout"], history[1]["rollout"] = 0.61, 0.72  # the later, higher one is kept
+    (run / "history.json").write_text(json.dumps(history))
+    text = report.main([str(run)])
+    assert ("best validation rollout score 0.720 (mean max coverage over seeds 200000-200019, "
+            "NFE 1, T=1) at step 200, 2.5 min" in text)
+    assert "train.select_by=rollout" in text
