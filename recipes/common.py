@@ -164,7 +164,8 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
         if step % cfg.train.log_every == 0:
             logger.log_scalar("train/loss", running, step=step)
             logger.log_scalar("train/lr", lr, step=step)
-            bar.set_postfix(loss=f"{running:.4f}", best_val=f"{best:.4f}")
+            shown = {"best_score": -best} if rollout_score is not None else {"best_val": best}
+            bar.set_postfix(loss=f"{running:.4f}", **{k: f"{v:.4f}" for k, v in shown.items()})
         stop = minutes >= cfg.train.max_minutes
         if step % cfg.train.val_every == 0 or step == cfg.train.steps or stop:
             val = validation_loss(ema.module, val_loss_fn, val_rb, cfg.train.val_batches, cfg.seed)
