@@ -95,7 +95,11 @@ def main(argv: list[str] | None = None) -> str:
             name += f", {cfg['t0_fraction']:g} of training times at t = 0"
         if not cfg.get("prior_repeat", True):
             name += ", independent prior per chunk step"
+        if by_rollout:
+            name += ", best.pt by rollout score"
         name += f", {cfg['train']['max_minutes']:g} min cap"
+        if name in summary:  # two runs of the same settings: tell them apart by folder
+            name += f" ({run.name})"
         for r in rows:
             summary.setdefault(name, {})[(int(r["nfe"]), float(r["t_end"]))] = float(r["score"])
         sections += [

@@ -92,3 +92,11 @@ def test_a_rollout_selected_run_names_its_selection_score_and_seeds(report, tmp_
     assert ("best validation rollout score 0.720 (mean max coverage over seeds 200000-200019, "
             "NFE 1, T=1) at step 200, 2.5 min" in text)
     assert "train.select_by=rollout" in text
+
+
+def test_runs_with_the_same_settings_keep_their_own_rows(report, tmp_path):
+    a = _run(tmp_path / "first", {(1, 1.0): 0.9})
+    b = _run(tmp_path / "second", {(1, 1.0): 0.2})
+    rows = [line for line in report.main([str(a), str(b)]).splitlines()
+            if line.startswith("| srfmp")]
+    assert rows[0].endswith("cap | 0.900 |") and rows[1].endswith("cap (second) | 0.200 |")
