@@ -41,3 +41,12 @@ def compose(name: str, overrides: list[str]):
 
     with initialize_config_dir(config_dir=str(ROOT / "recipes" / name), version_base="1.3"):
         return hydra_compose("config", overrides=overrides)
+
+
+def load_script(recipe: str, script: str):
+    """Import one stand-alone script, recipes/<recipe>/<script>.py, as a module."""
+    spec = importlib.util.spec_from_file_location(
+        f"{recipe}_{script}", ROOT / "recipes" / recipe / f"{script}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

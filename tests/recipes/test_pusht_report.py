@@ -4,12 +4,12 @@ training command reproduces every setting that differs from the recipe's config.
 from __future__ import annotations
 
 import copy
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 import yaml
+from recipe_loader import load_script
 
 ROOT = Path(__file__).resolve().parents[2]
 DEFAULTS = yaml.safe_load((ROOT / "recipes" / "pusht" / "config.yaml").read_text())
@@ -17,11 +17,7 @@ DEFAULTS = yaml.safe_load((ROOT / "recipes" / "pusht" / "config.yaml").read_text
 
 @pytest.fixture(scope="module")
 def report():
-    spec = importlib.util.spec_from_file_location(
-        "pusht_report", ROOT / "recipes" / "pusht" / "report.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("pusht", "report")
 
 
 def _run(folder: Path, scores: dict[tuple[int, float], float], **changes) -> Path:

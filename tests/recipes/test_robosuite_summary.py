@@ -2,23 +2,18 @@
 
 from __future__ import annotations
 
-import importlib.util
 import json
 from pathlib import Path
 
 import pytest
 import yaml
+from recipe_loader import load_script
 
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
 def summary():
-    spec = importlib.util.spec_from_file_location(
-        "robosuite_summary", ROOT / "recipes" / "robosuite" / "summary.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_script("robosuite", "summary")
 
 
 def _run(folder: Path, algo: str, success: dict[int, float], t0: float = 0.0) -> Path:
