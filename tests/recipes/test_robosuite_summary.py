@@ -10,7 +10,6 @@ import yaml
 from recipe_loader import load_script
 
 
-
 @pytest.fixture(scope="module")
 def summary():
     return load_script("robosuite", "summary")
