@@ -151,7 +151,9 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
         return float(loss.detach())
 
     config = OmegaConf.to_container(cfg, resolve=True)
-    best, best_step, start, running = float("inf"), 0, time.perf_counter(), None
+    # best.pt: the lowest validation loss, or the highest rollout score
+    sign, label = (-1.0, "score") if rollout_score is not None else (1.0, "val")
+    best, best_step, start, running = sign * float("inf"), 0, time.perf_counter(), None
     history = []
     bar = tqdm(range(1, int(cfg.train.steps) + 1), desc=f"train {cfg.algo}", unit="step",
                dynamic_ncols=True)
@@ -164,8 +166,7 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
         if step % cfg.train.log_every == 0:
             logger.log_scalar("train/loss", running, step=step)
             logger.log_scalar("train/lr", lr, step=step)
-            shown = {"best_score": -best} if rollout_score is not None else {"best_val": best}
-            bar.set_postfix(loss=f"{running:.4f}", **{k: f"{v:.4f}" for k, v in shown.items()})
+            bar.set_postfix({"loss": f"{running:.4f}", f"best_{label}": f"{best:.4f}"})
         stop = minutes >= cfg.train.max_minutes
         if step % cfg.train.val_every == 0 or step == cfg.train.steps or stop:
             val = validation_loss(ema.module, val_loss_fn, val_rb, cfg.train.val_batches, cfg.seed)
@@ -174,12 +175,11 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
             criterion, scores = val, {}
             if rollout_score is not None:
                 with torch.random.fork_rng():
-                    score = float(rollout_score(ema.module))
-                logger.log_scalar("val/rollout_score", score, step=step)
-                entry["rollout"] = scores["rollout_score"] = score
-                criterion = -score
+                    criterion = float(rollout_score(ema.module))
+                logger.log_scalar("val/rollout_score", criterion, step=step)
+                entry["rollout"] = scores["rollout_score"] = criterion
             history.append(entry)
-            if criterion < best:
+            if sign * criterion < sign * best:
                 best, best_step = criterion, step
                 save_checkpoint(run_dir / "best.pt", model, ema, config, step=step, val_loss=val,
                                 train_minutes=minutes, **scores)
@@ -190,7 +190,6 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
     save_checkpoint(run_dir / "last.pt", model, ema, config, step=step, train_minutes=minutes)
     (run_dir / "history.json").write_text(json.dumps(history, indent=1))
     what = "rollout score" if rollout_score is not None else "validation loss"
-    best = -best if rollout_score is not None else best
     print(f"trained {step} steps in {minutes:.1f} min; best {what} {best:.4f} at step {best_step}")
     return FitResult(step, minutes, best, best_step)
 

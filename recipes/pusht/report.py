@@ -74,7 +74,7 @@ def main(argv: list[str] | None = None) -> str:
     for run in args.runs:
         cfg = yaml.safe_load(_read(run / "config.yaml", "the run's configuration"))
         history = json.loads(_read(run / "history.json", "the run's validation curve"))
-        by_rollout = all("rollout" in h for h in history)
+        by_rollout = cfg["train"].get("select_by") == "rollout"
         best = (max(history, key=lambda h: h["rollout"]) if by_rollout
                 else min(history, key=lambda h: h["val"]))
         last = history[-1]
