@@ -6,7 +6,9 @@
 For every run folder (written by ``train.py``; evaluated by its final sweep or ``eval.py``):
 the training command that reproduces it (from its stored config), the training budget actually
 used (steps, minutes, best validation step), the evaluation table with its command, and a
-side-by-side summary of all runs at every NFE and end time T.
+side-by-side summary of all runs at every NFE and end time T. Runs whose settings differ only in
+``seed`` also get a table of their mean over training seeds (Diffusion Policy reports its Push-T
+scores over three training seeds), each run's own score beside it.
 """
 
 from __future__ import annotations
@@ -55,6 +57,21 @@ def train_command(cfg: dict, defaults: dict | None = None) -> str:
         _override(k, mine[k]) for k in keys)
 
 
+def _name(cfg: dict) -> str:
+    """A run's row label: what it learned and how, without its seed."""
+    name = f"{cfg['algo']} {cfg['obs']} {cfg['space']}" + (
+        f" ({cfg['prior']} prior)" if cfg["space"] == "sphere" and cfg["algo"] != "dp" else "")
+    if cfg["algo"] == "srfmp" and float(cfg.get("time_max", 1.0)) != 1.0:
+        name += f", trained on t in [0, {cfg['time_max']:g}]"
+    if float(cfg.get("t0_fraction", 0.0)):
+        name += f", {cfg['t0_fraction']:g} of training times at t = 0"
+    if not cfg.get("prior_repeat", True):
+        name += ", independent prior per chunk step"
+    if cfg["train"].get("select_by") == "rollout":
+        name += ", best.pt by rollout score"
+    return name + f", {cfg['train']['max_minutes']:g} min cap"
+
+
 def _read(path: Path, what: str) -> str:
     if not path.is_file():
         raise FileNotFoundError(f"report.py: {path} is missing ({what})")
@@ -70,9 +87,13 @@ def main(argv: list[str] | None = None) -> str:
                         help="further evaluation folders (eval.py outputs) appended as tables")
     args = parser.parse_args(argv)
     argv = sys.argv[1:] if argv is None else argv
-    sections, summary = [], {}
+    runs = []
     for run in args.runs:
         cfg = yaml.safe_load(_read(run / "config.yaml", "the run's configuration"))
+        runs.append((run, cfg, _name(cfg)))
+    names = [name for _, _, name in runs]
+    sections, summary, groups = [], {}, {}
+    for run, cfg, name in runs:
         history = json.loads(_read(run / "history.json", "the run's validation curve"))
         by_rollout = cfg["train"].get("select_by") == "rollout"
         best = (max(history, key=lambda h: h["rollout"]) if by_rollout
@@ -87,21 +108,14 @@ def main(argv: list[str] | None = None) -> str:
             chosen = f"best validation loss {best['val']:.4f}"
         table = _read(run / "eval" / "eval.csv", "eval.py's table")
         rows = list(csv.DictReader(table.splitlines()))
-        name = f"{cfg['algo']} {cfg['obs']} {cfg['space']}" + (
-            f" ({cfg['prior']} prior)" if cfg["space"] == "sphere" and cfg["algo"] != "dp" else "")
-        if cfg["algo"] == "srfmp" and float(cfg.get("time_max", 1.0)) != 1.0:
-            name += f", trained on t in [0, {cfg['time_max']:g}]"
-        if float(cfg.get("t0_fraction", 0.0)):
-            name += f", {cfg['t0_fraction']:g} of training times at t = 0"
-        if not cfg.get("prior_repeat", True):
-            name += ", independent prior per chunk step"
-        if by_rollout:
-            name += ", best.pt by rollout score"
-        name += f", {cfg['train']['max_minutes']:g} min cap"
-        if name in summary:  # two runs of the same settings: tell them apart by folder
-            name += f" ({run.name})"
-        for r in rows:
-            summary.setdefault(name, {})[(int(r["nfe"]), float(r["t_end"]))] = float(r["score"])
+        group = train_command({k: v for k, v in cfg.items() if k != "seed"})
+        if names.count(name) > 1:  # one label, several runs: their seeds, else their folders
+            name += f", seed {cfg['seed']}"
+            if name in summary:
+                name += f" ({run.name})"
+        scores = {(int(r["nfe"]), float(r["t_end"])): float(r["score"]) for r in rows}
+        summary[name] = scores
+        groups.setdefault(group, []).append((run.name, cfg["seed"], scores))
         sections += [
             f"## {name}",
             "",
@@ -123,6 +137,20 @@ def main(argv: list[str] | None = None) -> str:
     for name, scores in summary.items():
         head.append(f"| {name} | " + " | ".join(
             f"{scores[s]:.3f}" if s in scores else "-" for s in settings) + " |")
+    seeded = [g for g in groups.values() if len({seed for _, seed, _ in g}) > 1]
+    if seeded:
+        head += ["", "Across training seeds (runs whose settings differ only in `seed`): the mean "
+                 "of the runs' scores, then each run's score in the order of the runs column.",
+                 "", "| runs (seed) | " + " | ".join(f"NFE {n}, T={t:g}" for n, t in settings)
+                 + " |", "|---|" + "---|" * len(settings)]
+        for group in seeded:
+            cells = []
+            for s in settings:
+                got = [scores[s] for _, _, scores in group if s in scores]
+                cells.append("-" if len(got) < len(group) else f"{sum(got) / len(got):.3f} ("
+                             + ", ".join(f"{g:.3f}" for g in got) + ")")
+            head.append("| " + ", ".join(f"{folder} ({seed})" for folder, seed, _ in group)
+                        + " | " + " | ".join(cells) + " |")
     text = "\n".join(head + [""] + sections)
     if args.notes:
         text += "\n" + args.notes.read_text()

@@ -95,4 +95,21 @@ def test_runs_with_the_same_settings_keep_their_own_rows(report, tmp_path):
     b = _run(tmp_path / "second", {(1, 1.0): 0.2})
     rows = [line for line in report.main([str(a), str(b)]).splitlines()
             if line.startswith("| srfmp")]
-    assert rows[0].endswith("cap | 0.900 |") and rows[1].endswith("cap (second) | 0.200 |")
+    assert rows[0].endswith("cap, seed 0 | 0.900 |")
+    assert rows[1].endswith("cap, seed 0 (second) | 0.200 |")
+    assert "Across training seeds" not in "\n".join(rows)  # one seed: nothing to average
+
+
+def test_training_seeds_of_one_setting_are_averaged_and_others_kept_apart(report, tmp_path):
+    a = _run(tmp_path / "s0", {(1, 1.0): 0.84, (3, 1.0): 0.8}, seed=0)
+    b = _run(tmp_path / "s1", {(1, 1.0): 0.90, (3, 1.0): 0.7}, seed=1)
+    c = _run(tmp_path / "s2", {(1, 1.0): 0.87}, seed=2)  # no NFE 3 row: no mean there
+    other = _run(tmp_path / "lr", {(1, 1.0): 0.1}, seed=1, optim__lr=1e-3)  # another setting
+    text = report.main([str(p) for p in (a, b, c, other)])
+    summary = [line for line in text.splitlines() if line.startswith("| srfmp")]
+    assert summary[0].endswith("cap, seed 0 | 0.840 | 0.800 |")
+    assert summary[1].endswith("cap, seed 1 | 0.900 | 0.700 |")
+    assert summary[3].endswith("cap, seed 1 (lr) | 0.100 | - |")
+    seeded = [line for line in text.splitlines() if line.startswith("| s0 (0)")]
+    assert seeded == ["| s0 (0), s1 (1), s2 (2) | 0.870 (0.840, 0.900, 0.870) | - |"]
+    assert "lr (1)" not in text
