@@ -93,11 +93,11 @@ def test_a_rollout_selected_run_names_its_selection_score_and_seeds(report, tmp_
 def test_runs_with_the_same_settings_keep_their_own_rows(report, tmp_path):
     a = _run(tmp_path / "first", {(1, 1.0): 0.9})
     b = _run(tmp_path / "second", {(1, 1.0): 0.2})
-    rows = [line for line in report.main([str(a), str(b)]).splitlines()
-            if line.startswith("| srfmp")]
+    text = report.main([str(a), str(b)])
+    rows = [line for line in text.splitlines() if line.startswith("| srfmp")]
     assert rows[0].endswith("cap, seed 0 | 0.900 |")
     assert rows[1].endswith("cap, seed 0 (second) | 0.200 |")
-    assert "Across training seeds" not in "\n".join(rows)  # one seed: nothing to average
+    assert "Across training seeds" not in text  # one seed: nothing to average
 
 
 def test_training_seeds_of_one_setting_are_averaged_and_others_kept_apart(report, tmp_path):
