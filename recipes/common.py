@@ -1,30 +1,22 @@
-"""Pieces every training recipe shares (imported by recipes/<task>/utils.py and train.py):
-the optimiser with its budget-aware learning-rate rule, the TorchRL logger, the fixed-noise
-validation loss, the training loop with EMA and best-checkpoint keeping, and the acting policy
+"""Pieces every training recipe shares (imported by recipes/<task>/utils.py and train.py): the
+start of a run (runtime, resume, seeds, run folder), the call into the library's training
+engine (`rfmp_rl.training.Trainer`), checkpoint loading for evaluation, and the acting policy
 (FlowPolicy inside MultiStepActorWrapper) with the solver settings of each algorithm."""
 
 from __future__ import annotations
 
-import json
-import math
 import sys
-import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from tensordict import TensorDict
 from torchrl.modules import MultiStepActorWrapper
-from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
-from rfmp_rl.checkpoint import save_checkpoint  # noqa: E402
-from rfmp_rl.modules import EMA, FlowPolicy  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
+from rfmp_rl.modules import FlowPolicy  # noqa: E402
 from rfmp_rl.solvers import step_sizes  # noqa: E402
 
 #: Recipe algorithm name -> ModelConfig algorithm.
@@ -60,8 +52,9 @@ def split_stores(episodes: list, source, data_cfg: DictConfig, fmt: str):
 
 def load_for_eval(cfg: DictConfig, check_config) -> tuple:
     """``(model with EMA weights, task config, checkpoint extras, output folder)`` for eval.py:
-    the task comes from the checkpoint's stored training config, ``eval.*``, ``seed`` and
-    ``threads`` from this command line."""
+    the task comes from the checkpoint's stored training config, ``eval.*``, ``seed``,
+    ``threads``, ``device`` and ``compile`` from this command line (the policy runs on that
+    device in fp32)."""
     from rfmp_rl.checkpoint import load_checkpoint
 
     if not cfg.checkpoint:
@@ -71,127 +64,101 @@ def load_for_eval(cfg: DictConfig, check_config) -> tuple:
         raise SystemExit(f"eval.py: no such checkpoint: {checkpoint}")
     torch.set_num_threads(int(cfg.threads))
     model, payload = load_checkpoint(checkpoint, use_ema=True)
+    runtime = {k: cfg[k] for k in ("device", "precision", "compile") if k in cfg}
     task = OmegaConf.merge(OmegaConf.create(payload["config"]),
-                           {"eval": cfg.eval, "seed": cfg.seed, "threads": cfg.threads})
+                           {"eval": cfg.eval, "seed": cfg.seed, "threads": cfg.threads, **runtime})
     check_config(task)
+    from rfmp_rl.training import compile_networks, resolve_device
+
+    model = model.to(resolve_device(task.get("device", "auto")))
+    if task.get("compile", False):
+        compile_networks(model)
     out = Path(cfg.eval.out) if cfg.eval.out else checkpoint.parent / "eval"
     return model, task, payload.get("extra", {}), out
 
 
-def make_optimizer(model, cfg: DictConfig):
-    """AdamW and its learning-rate rule: linear warm-up, then a cosine decay to 0 over the run's
-    *progress* = max(step / train.steps, minutes / train.max_minutes), so the decay completes
-    whichever budget ends first (a wall-clock-capped CPU run still ends at lr 0)."""
-    # fused: one kernel for all parameters (about 3x faster than the per-tensor loop on CPU here)
-    optim = torch.optim.AdamW(model.parameters(), lr=cfg.optim.lr,
-                              weight_decay=cfg.optim.weight_decay, fused=True)
-    warmup = max(1, int(cfg.optim.warmup_steps))
+def check_runtime_config(cfg: DictConfig) -> None:
+    """The device / precision / compile / logger / eval.workers settings, checked before any
+    work (each error names its setting)."""
+    from rfmp_rl.training import LOGGER_BACKENDS, PRECISIONS, resolve_device
 
-    def lr_at(step: int, progress: float) -> float:
-        progress = min(max(progress, 0.0), 1.0)
-        return cfg.optim.lr * min(1.0, step / warmup) * 0.5 * (1 + math.cos(math.pi * progress))
-
-    return optim, lr_at
-
-
-def make_logger(run_dir: Path, cfg: DictConfig):
-    """TorchRL's CSV logger in ``<run>/logs`` with the config as hyper-parameters."""
-    from torchrl.record.loggers import get_logger
-
-    logger = get_logger("csv", logger_name=str(run_dir), experiment_name="logs")
-    logger.log_hparams(OmegaConf.to_container(cfg, resolve=True))
-    return logger
+    device = resolve_device(cfg.get("device", "auto"))
+    precision = cfg.get("precision", "fp32")
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision={precision!r}: use one of {sorted(PRECISIONS)}")
+    if precision == "fp16" and device.type != "cuda":
+        raise ValueError(f"precision=fp16 needs a CUDA device (device={cfg.get('device')} is "
+                         f"{device.type}); use precision=bf16 or fp32")
+    if not isinstance(cfg.get("compile", False), bool):
+        raise ValueError(f"compile must be true or false, got {cfg.get('compile')!r}")
+    backend = cfg.get("logger", {}).get("backend", "csv")
+    if backend not in LOGGER_BACKENDS:
+        raise ValueError(f"logger.backend={backend!r}: use one of {LOGGER_BACKENDS}")
+    workers = cfg.get("eval", {}).get("workers", 1)
+    if not isinstance(workers, int) or workers < 1:
+        raise ValueError(f"eval.workers must be an integer >= 1, got {workers!r}")
 
 
-def validation_loss(model, loss_fn, rb, batches: int, seed: int) -> float:
-    """Mean loss over ``batches`` fixed batches with fixed noise (comparable across calls)."""
-    rb.sampler.generator.manual_seed(seed)
-    total = 0.0
-    with torch.random.fork_rng(), torch.no_grad():
-        torch.manual_seed(seed)
-        for _ in range(batches):
-            out = loss_fn(rb.sample())
-            total += float(sum(v for k, v in out.items() if k.startswith("loss_")))
-    return total / batches
+def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name: str = "run"):
+    """Everything before the data: the runtime (device, precision, compile; the DDP process
+    group under torchrun), the resumed configuration (``resume=``), the seeds (by seed and
+    rank) and the run folder. Returns ``(cfg, runtime, run_dir, last.pt to resume or None)``.
+    Nothing is written here, so a refused setting leaves the run folder as it was."""
+    from rfmp_rl.training import rank_seed, setup_runtime
+    from rfmp_rl.training.resume import resume_checkpoint, resume_config
+
+    last = None
+    if cfg.get("resume"):
+        last = resume_checkpoint(cfg.resume, recipe)
+        cfg = resume_config(cfg, last, fixed, overrides)
+    runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile)
+    torch.set_num_threads(int(cfg.threads))
+    torch.manual_seed(rank_seed(cfg.seed, runtime.rank))
+    run_dir = Path(cfg.out_dir or ROOT / "runs" / recipe / default_name)
+    return cfg, runtime, run_dir, last
 
 
-@dataclass
-class FitResult:
-    steps: int
-    minutes: float
-    best_val: float  # the lowest validation loss, or the highest rollout score with rollout_score
-    best_step: int
+def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,
+        camera_keys=None, rollout_score=None):
+    """Train with the library's engine (`rfmp_rl.training.Trainer`) and the recipe's settings
+    (``optim``, ``train``, ``logger``). ``config.yaml`` is written once the engine has accepted
+    the settings (a refused resume writes nothing)."""
+    from rfmp_rl.training import LoggerConfig, OptimConfig, TrainConfig, Trainer
+
+    trainer = Trainer(
+        model, rb, val_rb, runtime=runtime, run_dir=run_dir, recipe=recipe,
+        optim=OptimConfig.from_config(cfg.optim), train=TrainConfig.from_config(cfg.train),
+        logger=LoggerConfig.from_config(cfg.get("logger", "csv")),
+        config=OmegaConf.to_container(cfg, resolve=True), seed=int(cfg.seed),
+        camera_keys=camera_keys, rollout_score=rollout_score, resume=resume,
+    )
+    if runtime.is_main:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+    return trainer.fit()
 
 
-def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, camera_keys=None,
-        rollout_score=None) -> FitResult:
-    """Train ``model`` on ``rb`` (AdamW, EMA, budget-aware lr), validate the EMA weights every
-    ``train.val_every`` steps on ``val_rb`` and keep ``best.pt`` (lowest validation loss) and
-    ``last.pt``; ``history.json`` and the CSV logs record the curves.
+def eval_model(path: Path, cfg: DictConfig, runtime=None):
+    """The EMA policy of a checkpoint on the run's device, compiled with ``compile=true``;
+    returns ``(model, payload)``."""
+    from rfmp_rl.checkpoint import load_checkpoint
+    from rfmp_rl.training import compile_networks
 
-    ``rollout_score(ema_model) -> float`` (higher is better; e.g. the mean task score over
-    validation seeds) is also computed at every validation and then chooses ``best.pt`` instead
-    of the loss, as Diffusion Policy keeps its checkpoints by rollout score. It runs with the
-    global RNG state saved and restored, so training draws the same numbers either way."""
-    ema = EMA(model, decay=cfg.optim.ema_decay)
-    loss_fn = make_loss(model, camera_keys)
-    val_loss_fn = make_loss(ema.module, camera_keys)
-    optim, lr_at = make_optimizer(model, cfg)
-    logger = make_logger(run_dir, cfg)
+    model, payload = load_checkpoint(path, use_ema=True)
+    if runtime is not None:
+        model = model.to(runtime.device)
+        if runtime.compile:
+            compile_networks(model)
+    return model.eval(), payload
 
-    def update(batch: TensorDict, lr: float) -> float:
-        for group in optim.param_groups:
-            group["lr"] = lr
-        out = loss_fn(batch)
-        loss = sum(v for k, v in out.items() if k.startswith("loss_"))
-        optim.zero_grad()
-        loss.backward()
-        optim.step()
-        ema.update(model)
-        return float(loss.detach())
 
-    config = OmegaConf.to_container(cfg, resolve=True)
-    # best.pt: the lowest validation loss, or the highest rollout score
-    sign, label = (-1.0, "score") if rollout_score is not None else (1.0, "val")
-    best, best_step, start, running = sign * float("inf"), 0, time.perf_counter(), None
-    history = []
-    bar = tqdm(range(1, int(cfg.train.steps) + 1), desc=f"train {cfg.algo}", unit="step",
-               dynamic_ncols=True)
-    step, minutes = 0, 0.0
-    for step in bar:
-        minutes = (time.perf_counter() - start) / 60
-        lr = lr_at(step, max(step / cfg.train.steps, minutes / cfg.train.max_minutes))
-        value = update(rb.sample(), lr)
-        running = value if running is None else 0.98 * running + 0.02 * value
-        if step % cfg.train.log_every == 0:
-            logger.log_scalar("train/loss", running, step=step)
-            logger.log_scalar("train/lr", lr, step=step)
-            bar.set_postfix({"loss": f"{running:.4f}", f"best_{label}": f"{best:.4f}"})
-        stop = minutes >= cfg.train.max_minutes
-        if step % cfg.train.val_every == 0 or step == cfg.train.steps or stop:
-            val = validation_loss(ema.module, val_loss_fn, val_rb, cfg.train.val_batches, cfg.seed)
-            logger.log_scalar("val/loss", val, step=step)
-            entry = {"step": step, "minutes": minutes, "train": running, "val": val}
-            criterion, scores = val, {}
-            if rollout_score is not None:
-                with torch.random.fork_rng():
-                    criterion = float(rollout_score(ema.module))
-                logger.log_scalar("val/rollout_score", criterion, step=step)
-                entry["rollout"] = scores["rollout_score"] = criterion
-            history.append(entry)
-            if sign * criterion < sign * best:
-                best, best_step = criterion, step
-                save_checkpoint(run_dir / "best.pt", model, ema, config, step=step, val_loss=val,
-                                train_minutes=minutes, **scores)
-        if stop:
-            print(f"stopping at step {step}: train.max_minutes={cfg.train.max_minutes} reached")
-            break
-    minutes = (time.perf_counter() - start) / 60
-    save_checkpoint(run_dir / "last.pt", model, ema, config, step=step, train_minutes=minutes)
-    (run_dir / "history.json").write_text(json.dumps(history, indent=1))
-    what = "rollout score" if rollout_score is not None else "validation loss"
-    print(f"trained {step} steps in {minutes:.1f} min; best {what} {best:.4f} at step {best_step}")
-    return FitResult(step, minutes, best, best_step)
+def exit_code(result) -> int:
+    """The process exit status of a training run: 0, or 128 + the signal that stopped it."""
+    import signal
+
+    if not result.interrupted or not result.interrupted.startswith("SIG"):
+        return 0 if not result.interrupted else 1
+    return 128 + int(getattr(signal, result.interrupted))
 
 
 def solver_settings(model, nfe: int, t_end: float) -> dict:

@@ -48,8 +48,14 @@ from rfmp_rl.data.lasa import load_lasa_sphere  # noqa: E402
 from rfmp_rl.envs import make_lasa_sphere_env  # noqa: E402
 from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw  # noqa: E402
 from rfmp_rl.manifolds import Sphere  # noqa: E402
-from rfmp_rl.modules import EMA, FlowPolicy, ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
+from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model  # noqa: E402
+from rfmp_rl.training import (  # noqa: E402
+    LoggerConfig,
+    OptimConfig,
+    TrainConfig,
+    Trainer,
+    setup_runtime,
+)
 
 S2 = Sphere(2)
 
@@ -88,7 +94,8 @@ def make_replay_buffer(demos: dict[str, torch.Tensor], cfg: DictConfig) -> Tenso
 
 
 # ----- training --------------------------------------------------------------------------------
-def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictConfig):
+def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictConfig, runtime,
+          run_dir: Path):
     model_cfg = ModelConfig(
         algorithm=algorithm,
         action_manifold="S2",
@@ -112,35 +119,21 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
     data = rb.storage.get(torch.arange(len(rb)))
     model.action_normalizer.fit(data["action"])
     model.obs_normalizer.fit(data["observation"])
-    loss_fn = make_loss(model)
-    optim = torch.optim.AdamW(
-        model.parameters(), lr=cfg.lr, weight_decay=cfg.weight_decay, fused=True
+    # The library's engine: AdamW, warm-up over the first 5% then a cosine decay, EMA; the
+    # training samples double as the validation batches (one loss at the end, for the log).
+    trainer = Trainer(
+        model, rb, rb, runtime=runtime, run_dir=run_dir, recipe="quickstart",
+        optim=OptimConfig(lr=cfg.lr, weight_decay=cfg.weight_decay,
+                          warmup_steps=max(1, cfg.steps // 20), ema_decay=cfg.ema_decay),
+        train=TrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, val_every=cfg.steps,
+                          val_batches=1, log_every=max(1, cfg.steps // 50),
+                          checkpoint_every=cfg.steps),
+        logger=LoggerConfig.from_config(cfg.logger), config=OmegaConf.to_container(cfg),
+        seed=cfg.seed,
     )
-    warmup = max(1, cfg.steps // 20)  # linear warm-up, then cosine decay to 0
-    sched = torch.optim.lr_scheduler.LambdaLR(
-        optim,
-        lambda i: min(1.0, (i + 1) / warmup) * 0.5 * (1 + math.cos(math.pi * i / cfg.steps)),
-    )
-    ema = EMA(model, decay=cfg.ema_decay)
-
-    def update(batch: TensorDict) -> float:
-        out = loss_fn(batch)
-        loss = sum(v for k, v in out.items() if k.startswith("loss_"))
-        optim.zero_grad()
-        loss.backward()
-        optim.step()
-        sched.step()
-        ema.update(model)
-        return float(loss.detach())
-
     start = time.perf_counter()
-    bar = tqdm(range(cfg.steps), desc=f"train {algorithm}", unit="step", dynamic_ncols=True)
-    running = None
-    for _ in bar:
-        value = update(rb.sample())
-        running = value if running is None else 0.98 * running + 0.02 * value
-        bar.set_postfix(loss=f"{running:.4f}")
-    return model, ema, time.perf_counter() - start
+    trainer.fit()
+    return trainer.model, trainer.ema, time.perf_counter() - start
 
 
 # ----- evaluation ------------------------------------------------------------------------------
@@ -339,6 +332,7 @@ def main(cfg: DictConfig) -> None:
     t_start = time.perf_counter()
     torch.set_num_threads(cfg.threads)
     torch.manual_seed(cfg.seed)
+    runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile, distributed=False)
     stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
     out = Path(cfg.out_dir) if cfg.out_dir else ROOT / "runs" / "quickstart" / stamp
     out.mkdir(parents=True, exist_ok=True)
@@ -355,7 +349,7 @@ def main(cfg: DictConfig) -> None:
 
     models, train_seconds = {}, {}
     for algorithm in ("rfmp", "srfmp"):
-        model, ema, seconds = train(algorithm, rb, len(demos), cfg)
+        model, ema, seconds = train(algorithm, rb, len(demos), cfg, runtime, out / algorithm)
         save_checkpoint(
             out / f"{algorithm}.pt",
             model,
@@ -363,7 +357,7 @@ def main(cfg: DictConfig) -> None:
             config=OmegaConf.to_container(cfg, resolve=True),
             steps=cfg.steps,
         )
-        models[algorithm] = ema.module.eval()
+        models[algorithm] = ema.module.eval().cpu()  # rolled out on the CPU, in fp32
         train_seconds[algorithm] = seconds
 
     starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)

@@ -28,6 +28,7 @@ def save_checkpoint(
     model: FlowModel | DiffusionModel,
     ema: EMA | None = None,
     config: Mapping[str, Any] | None = None,
+    training_state: Mapping[str, Any] | None = None,
     **extra: Any,
 ) -> Path:
     """Atomically write a checkpoint.
@@ -37,6 +38,8 @@ def save_checkpoint(
         model: the trained network (its normalisers are part of its state).
         ema: the EMA of the weights, if any.
         config: the run configuration (plain, JSON-like values), stored for reproducibility.
+        training_state: what a resumed run needs beyond the weights (optimiser, step, RNG
+            states; written by `rfmp_rl.training.Trainer` into ``last.pt``).
         **extra: further plain values (epoch, step, validation loss, ...).
 
     Returns:
@@ -66,6 +69,8 @@ def save_checkpoint(
         "config": dict(config) if config is not None else {},
         "extra": extra,
     }
+    if training_state is not None:
+        payload["training_state"] = dict(training_state)
     tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
     try:
         with open(tmp, "wb") as f:

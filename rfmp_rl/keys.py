@@ -17,5 +17,8 @@ OBS_GAP = "obs_gap"
 ACTION = "action"
 ACTION_IS_PAD = "action_is_pad"
 PRIOR_NOISE = "prior_noise"
+FLOW_TIME = "flow_time"
 
-__all__ = ["OBSERVATION", "PIXELS", "OBS_GAP", "ACTION", "ACTION_IS_PAD", "PRIOR_NOISE"]
+__all__ = [
+    "OBSERVATION", "PIXELS", "OBS_GAP", "ACTION", "ACTION_IS_PAD", "PRIOR_NOISE", "FLOW_TIME",
+]

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -37,7 +38,9 @@ def run_seed(cfg, seed: int) -> dict:
     demos = qs.load_shapes(cfg)
     dt = qs.load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
     rb = qs.make_replay_buffer(demos, cfg)
-    _, ema, seconds = qs.train("srfmp", rb, len(demos), cfg)
+    runtime = qs.setup_runtime(cfg.device, cfg.precision, cfg.compile, distributed=False)
+    with tempfile.TemporaryDirectory() as run_dir:  # the engine's checkpoints, not kept
+        _, ema, seconds = qs.train("srfmp", rb, len(demos), cfg, runtime, Path(run_dir))
     model = ema.module.eval()
     starts, shape_ids, _ = qs.start_points(demos, cfg.perturb, 0)  # the quickstart's starts
     context = qs.one_hot(shape_ids, len(demos))

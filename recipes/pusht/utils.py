@@ -19,12 +19,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the sh
 from common import (  # noqa: E402
     ALGOS,
     ROOT,
+    check_runtime_config,
     end_time,
+    eval_model,
+    exit_code,
     fit,
     load_for_eval,
     make_actor,
     resolve,
     split_stores,
+    start_run,
     sweep_settings,
 )
 
@@ -36,9 +40,11 @@ from rfmp_rl.envs.pusht import (  # noqa: E402
     pusht_episodes,
 )
 from rfmp_rl.eval.metrics import jerk  # noqa: E402
+from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
-__all__ = ["ROOT", "resolve", "end_time", "fit", "load_for_eval"]
+__all__ = ["ROOT", "resolve", "end_time", "fit", "load_for_eval", "start_run", "eval_model",
+           "exit_code"]
 
 CONTROL_DT = 0.1  # Push-T runs at 10 Hz
 
@@ -54,6 +60,7 @@ def check_config(cfg: DictConfig) -> None:
     if train.get("select_by", "val_loss") not in ("val_loss", "rollout"):
         raise ValueError(f"train.select_by must be 'val_loss' or 'rollout', got "
                          f"{train.select_by!r}")
+    check_runtime_config(cfg)
     if train.get("select_by") == "rollout":
         chosen = range(int(train.select_seed_start),
                        int(train.select_seed_start) + int(train.select_seeds))
@@ -136,26 +143,34 @@ def make_model(cfg: DictConfig, store: DemonstrationStore):
 
 
 # ----- acting ----------------------------------------------------------------------------------
-def make_env(cfg: DictConfig, seeds: list[int], max_steps: int):
-    return make_pusht_env(
-        [len(seeds)], obs_type=cfg.obs, space=cfg.space, max_steps=max_steps, seeds=seeds,
+def make_env(cfg: DictConfig, seeds: list[int], max_steps: int, noise_dim: int | None = None):
+    """The evaluation env over ``seeds``: ``(env, number of seeds)``, stepped by ``eval.workers``
+    processes (TorchRL ``ParallelEnv``) when more than one; with ``noise_dim`` each episode's
+    prior noise comes from its own seed (`rfmp_rl.eval.parallel.PriorNoise`)."""
+    return evaluation_env(
+        make_pusht_env, seeds, int(cfg.eval.get("workers", 1)), noise_dim=noise_dim,
+        noise_seed=int(cfg.seed), obs_type=cfg.obs, space=cfg.space, max_steps=max_steps,
         obs_horizon=cfg.obs_horizon,
     )
 
 
 @torch.no_grad()
 def evaluate(model, cfg: DictConfig, nfe: int, t_end: float) -> dict:
-    """One closed-loop evaluation over ``eval.seeds`` seeds, all in one batched env."""
+    """One closed-loop evaluation over ``eval.seeds`` seeds in one batched env (over
+    ``eval.workers`` processes); each episode's prior noise comes from its own seed, so per-seed
+    results do not depend on the number of workers."""
     seeds = list(range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds)))
-    env = make_env(cfg, seeds, int(cfg.eval.max_steps))
-    actor = make_actor(model, nfe, t_end, camera_keys={keys.PIXELS: "pixels_window"})
-    mode = (ExplorationType.DETERMINISTIC if cfg.eval.sampling == "deterministic"
-            else ExplorationType.RANDOM)
+    deterministic = cfg.eval.sampling == "deterministic"
+    env, _ = make_env(cfg, seeds, int(cfg.eval.max_steps),
+                      None if deterministic else int(model.noise_dim))
+    actor = FlatBatch(make_actor(model, nfe, t_end, camera_keys={keys.PIXELS: "pixels_window"}))
+    mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     torch.manual_seed(int(cfg.seed))
     start = time.perf_counter()
     with set_exploration_type(mode):
         out = env.rollout(int(cfg.eval.max_steps), actor, break_when_any_done=False,
                           break_when_all_done=True)
+    out = flatten_workers(out, len(seeds))
     seconds = time.perf_counter() - start
     score = out["next", "max_coverage"][:, -1, 0]  # (N,)
     success = out["next", "success"][:, -1, 0].float()

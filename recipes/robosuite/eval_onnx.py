@@ -60,7 +60,7 @@ def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> 
     max_steps = int(task.eval.max_steps or ROBOSUITE_MAX_STEPS[task.task])
     success, latencies, events = [], [], []
     for seed in seeds:
-        env = make_env(task, [seed])
+        env, _ = make_env(task, [seed])
         try:
             td = env.reset()
             controller.reset()

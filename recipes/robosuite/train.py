@@ -18,20 +18,22 @@ from datetime import datetime
 from pathlib import Path
 
 import hydra
-import torch
-from omegaconf import DictConfig, OmegaConf
+from omegaconf import DictConfig
 from utils import (  # noqa: I001
-    ROOT,
     check_config,
+    ensure_demos,
+    eval_model,
+    exit_code,
     fit,
     make_model,
     make_replay_buffer,
     make_stores,
+    start_run,
     sweep,
     write_tables,
 )
 
-from rfmp_rl.checkpoint import load_checkpoint
+from rfmp_rl.training import rank_seed
 
 
 def show(row: dict) -> None:
@@ -39,42 +41,58 @@ def show(row: dict) -> None:
           f"jerk {row['jerk']:.3g} ({row['seconds']:.0f} s)")
 
 
-def train(cfg: DictConfig) -> Path:
-    """Train, keep the best checkpoint, optionally evaluate it; returns the run folder."""
-    check_config(cfg)
-    torch.manual_seed(cfg.seed)
-    torch.set_num_threads(int(cfg.threads))
-    stamp = datetime.now().strftime("%Y%m%d_%H%M%S")
-    name = f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}_{stamp}"
-    run_dir = Path(cfg.out_dir or ROOT / "runs" / "robosuite" / name)
-    run_dir.mkdir(parents=True, exist_ok=True)
-    (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+#: Settings that define a run: a resumed run may not change them.
+FIXED = ("task", "algo", "obs", "action_space", "geometry", "prior", "prior_scale",
+         "prior_repeat", "preset", "down_dims", "horizon", "action_steps", "obs_horizon",
+         "lambda_x", "lambda_tau", "time_max", "t0_fraction")
 
+
+def train(cfg: DictConfig, overrides=None) -> Path:
+    """Train, keep the best checkpoint, optionally evaluate it; returns the run folder.
+    ``overrides``: the command line's explicit overrides (applied on top of a resumed run's
+    configuration)."""
+    check_config(cfg)
+    stamp = datetime.now().strftime("%Y%m%d_%H%M%S")
+    cfg, runtime, run_dir, last = start_run(
+        cfg, "robosuite", FIXED, overrides,
+        f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}_{stamp}")
+    check_config(cfg)
+    if runtime.is_main:
+        ensure_demos(cfg)  # the scripted expert writes the file once, on rank 0
+    runtime.barrier()
     train_store, val_store = make_stores(cfg)
-    print(train_store.manifest)
-    rb = make_replay_buffer(train_store, cfg, seed=cfg.seed)
+    rb = make_replay_buffer(train_store, cfg, seed=rank_seed(cfg.seed, runtime.rank))
     val_rb = make_replay_buffer(val_store, cfg, seed=cfg.seed + 1)
     model = make_model(cfg, train_store)
-    n_params = sum(p.numel() for p in model.parameters())
-    print(f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space}): {n_params / 1e6:.2f}M "
-          f"parameters, {len(train_store)} steps in {train_store.num_episodes} episodes")
-    result = fit(model, rb, val_rb, cfg, run_dir)
-
-    if cfg.eval.final_eval:
-        best_model, meta = load_checkpoint(run_dir / "best.pt", use_ema=True)
+    if runtime.is_main:
+        print(train_store.manifest)
+        n_params = sum(p.numel() for p in model.parameters())
+        print(f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space}): {n_params / 1e6:.2f}M "
+              f"parameters, {len(train_store)} steps in {train_store.num_episodes} episodes; "
+              f"{runtime.world_size} process(es) on {runtime.device} ({cfg.precision}), global "
+              f"batch {cfg.train.batch_size * runtime.world_size}")
+    result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last)
+    train.result = result
+    if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
+        best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
         rows = sweep(best_model, cfg, progress=show)
         title = (f"{cfg.task} {cfg.obs} {cfg.action_space}: {cfg.algo} ({cfg.preset}, best of "
                  f"{result.steps} steps at step {meta['extra'].get('step')}, "
                  f"{result.minutes:.0f} min)")
         command = f"python recipes/robosuite/eval.py checkpoint={run_dir / 'best.pt'}"
         print(write_tables(rows, run_dir / "eval", title, command).read_text())
-    print(f"run folder: {run_dir}")
+    if runtime.is_main:
+        print(f"run folder: {run_dir}")
+    runtime.shutdown()
     return run_dir
 
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
-    train(cfg)
+    from hydra.core.hydra_config import HydraConfig
+
+    train(cfg, overrides=list(HydraConfig.get().overrides.task))
+    raise SystemExit(exit_code(train.result))
 
 
 if __name__ == "__main__":

@@ -21,12 +21,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the sh
 from common import (  # noqa: E402
     ALGOS,
     ROOT,
+    check_runtime_config,
     end_time,
+    eval_model,
+    exit_code,
     fit,
     load_for_eval,
     make_actor,
     resolve,
     split_stores,
+    start_run,
     sweep_settings,
 )
 
@@ -42,10 +46,11 @@ from rfmp_rl.envs.robosuite import (  # noqa: E402
     make_robosuite_env,
 )
 from rfmp_rl.eval.metrics import jerk  # noqa: E402
+from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # noqa: E402
 from rfmp_rl.manifolds.quaternion import hemisphere_continuous  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
-__all__ = ["ROOT", "fit", "end_time", "load_for_eval"]
+__all__ = ["ROOT", "fit", "end_time", "load_for_eval", "start_run", "eval_model", "exit_code"]
 
 CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
@@ -62,6 +67,7 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"action_space must be 'delta' or 'abs_pose', got {cfg.action_space!r}")
     if cfg.geometry not in ("riemannian", "euclidean"):
         raise ValueError(f"geometry must be 'riemannian' or 'euclidean', got {cfg.geometry!r}")
+    check_runtime_config(cfg)
 
 
 def pose_action(cfg: DictConfig) -> bool:
@@ -209,11 +215,16 @@ def make_env_actor(model, cfg: DictConfig, nfe: int, t_end: float):
     return actor
 
 
-def make_env(cfg: DictConfig, seeds: list[int]):
-    return make_robosuite_env(
-        cfg.task, [len(seeds)], obs_horizon=cfg.obs_horizon, action_space=cfg.action_space,
+def make_env(cfg: DictConfig, seeds: list[int], noise_dim: int | None = None):
+    """The evaluation env over ``seeds``: ``(env, number of seeds)``, stepped by ``eval.workers``
+    processes (TorchRL ``ParallelEnv``) when more than one; with ``noise_dim`` each episode's
+    prior noise comes from its own seed (`rfmp_rl.eval.parallel.PriorNoise`)."""
+    return evaluation_env(
+        make_robosuite_env, seeds, int(cfg.eval.get("workers", 1)), noise_dim=noise_dim,
+        noise_seed=int(cfg.seed), task=cfg.task, obs_horizon=cfg.obs_horizon,
+        action_space=cfg.action_space,
         cameras=tuple(c.removesuffix("_image") for c in CAMERAS) if cfg.obs == "image" else (),
-        low_dim_keys=low_dim_keys(cfg), max_steps=cfg.eval.max_steps, seeds=seeds,
+        low_dim_keys=low_dim_keys(cfg), max_steps=cfg.eval.max_steps,
     )
 
 
@@ -232,19 +243,26 @@ def eval_num_envs(cfg: DictConfig) -> int:
     return int(n)
 
 
+def _noise_dim(model, cfg: DictConfig) -> int | None:
+    """Prior noise per episode from its seed (random sampling); None for the prior's mode."""
+    return None if cfg.eval.sampling == "deterministic" else int(model.noise_dim)
+
+
 @torch.no_grad()
-def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env, chunk: int = 0) -> dict:
-    """One closed-loop evaluation over the env's seeds (one batched env, reset here); the row's
-    ``per_seed`` lists each seed's success (0/1, in the env's seed order). ``chunk`` offsets the
-    torch seed of the prior samples when the seeds are split over several envs."""
-    actor = make_env_actor(model, cfg, nfe, t_end)
+def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env, seeds: list[int]) -> dict:
+    """One closed-loop evaluation over ``seeds`` in ``env`` (from `make_env`, reset here); the
+    row's ``per_seed`` lists each seed's success (0/1, in seed order). Each episode's prior noise
+    comes from its own seed, so the row does not depend on ``eval.workers`` or
+    ``eval.num_envs``."""
+    actor = FlatBatch(make_env_actor(model, cfg, nfe, t_end))  # workers x envs -> one batch
     mode = (ExplorationType.DETERMINISTIC if cfg.eval.sampling == "deterministic"
             else ExplorationType.RANDOM)
     max_steps = int(cfg.eval.max_steps or ROBOSUITE_MAX_STEPS[cfg.task])
-    torch.manual_seed(int(cfg.seed) + chunk)
+    torch.manual_seed(int(cfg.seed))
     start = time.perf_counter()
     with set_exploration_type(mode):
         out = env.rollout(max_steps, actor, break_when_any_done=False, break_when_all_done=True)
+    out = flatten_workers(out, len(seeds))
     seconds = time.perf_counter() - start
     success = out["next", "success"][:, -1, 0].float()
     steps = out["next", "step_count"][:, -1, 0]
@@ -269,7 +287,7 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env, chunk: int = 0
         "quat_norm_err": manifold_err if pose_action(cfg) else float("nan"),
         "env_steps": int(steps.sum()),
         "seconds": seconds,
-        "seeds": f"{env.base_env.seeds[0]}-{env.base_env.seeds[-1]}",
+        "seeds": f"{seeds[0]}-{seeds[-1]}",
         "per_seed": [int(v) for v in success.tolist()],
         "per_seed_jerk": jerks,
     }
@@ -297,18 +315,19 @@ def _merge(parts: list[dict]) -> dict:
 
 def sweep(model, cfg: DictConfig, progress=None) -> list[dict]:
     """Every (NFE, T) of ``cfg.eval`` on ``eval.seeds`` seeds, stepped `eval_num_envs` at a time
-    (one env per chunk of seeds, built once for all settings)."""
+    (one env per chunk of seeds, built once for all settings, over ``eval.workers``
+    processes)."""
     seeds = list(range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds)))
     size = eval_num_envs(cfg)
     chunks = [seeds[i:i + size] for i in range(0, len(seeds), size)]
     settings = list(sweep_settings(model, cfg.eval.nfes, cfg.eval.t_ends,
                                    cfg.eval.get("time_table")))
     parts: list[list[dict]] = [[] for _ in settings]
-    for c, chunk in enumerate(chunks):
-        env = make_env(cfg, chunk)
+    for chunk in chunks:
+        env, _ = make_env(cfg, chunk, _noise_dim(model, cfg))
         try:
             for k, (nfe, t_end) in enumerate(settings):
-                parts[k].append(evaluate(model, cfg, nfe, t_end, env, chunk=c))
+                parts[k].append(evaluate(model, cfg, nfe, t_end, env, chunk))
                 if len(chunks) > 1:
                     print(f"  NFE={nfe} T={t_end:g}: seeds {chunk[0]}-{chunk[-1]} done "
                           f"({sum(parts[k][-1]['per_seed'])}/{len(chunk)} successes)")

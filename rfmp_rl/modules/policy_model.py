@@ -183,6 +183,28 @@ class PolicyModel(nn.Module):
             tau_hidden_dim=cfg.tau_hidden_dim,
             time_scale=1.0 if cfg.algorithm == "ddim" else 100.0,
         )
+        self.amp_dtype: torch.dtype | None = None  # set_precision; not part of the state
+
+    # ----- precision ---------------------------------------------------------------------------
+    def set_precision(self, precision: str) -> PolicyModel:
+        """Run the networks (observation encoder, UNet) under autocast: ``fp32`` (off), ``bf16``
+        or ``fp16``. Their outputs come back in the caller's dtype, so the normalisers, the
+        manifold maps and the solver's projections always compute in float32."""
+        dtypes = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+        if precision not in dtypes:
+            raise ValueError(f"precision must be one of {sorted(dtypes)}, got {precision!r}")
+        self.amp_dtype = dtypes[precision]
+        return self
+
+    def _run_network(self, module: nn.Module, like: torch.Tensor, *args):
+        """``module(*args)`` under the model's autocast; outputs cast to ``like``'s dtype."""
+        if self.amp_dtype is None:
+            return module(*args)
+        with torch.autocast(like.device.type, dtype=self.amp_dtype):
+            out = module(*args)
+        if isinstance(out, tuple):
+            return tuple(o.to(like.dtype) for o in out)
+        return out.to(like.dtype)
 
     # ----- observations ------------------------------------------------------------------------
     def encode(
@@ -209,7 +231,9 @@ class PolicyModel(nn.Module):
                 raise ValueError(f"this policy needs images for cameras {list(self.cameras)}")
             images_ref = {name: images[name][:, 1] for name in self.cameras}
             images_ctx = {name: images[name][:, 0] for name in self.cameras}
-        return self.obs_encoder(obs_ref, obs_ctx, gap, images_ref, images_ctx)
+        like = obs_ref if obs_ref is not None else self.obs_normalizer.offset
+        return self._run_network(self.obs_encoder, like, obs_ref, obs_ctx, gap, images_ref,
+                                 images_ctx)
 
     # ----- actions -----------------------------------------------------------------------------
     def normalize_action(self, action: torch.Tensor) -> torch.Tensor:
@@ -282,7 +306,7 @@ class FlowModel(PolicyModel):
         ``time`` is the flow time t for RFMP and the pseudo-time tau for SRFMP; SRFMP returns
         ``(v_x, v_tau)``. Velocities are projected onto the tangent space at x.
         """
-        out = self.network(self.chunk.unflatten(x), time.reshape(-1), cond)
+        out = self._run_network(self.network, x, self.chunk.unflatten(x), time.reshape(-1), cond)
         if self.stable:
             v_x, v_tau = out
             return self.chunk.proju(x, self.chunk.flatten(v_x)), v_tau
@@ -405,7 +429,8 @@ class DiffusionModel(PolicyModel):
         return ab.sqrt() * x + (1 - ab).sqrt() * eps
 
     def predict_noise(self, x: torch.Tensor, k: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
-        return self.chunk.flatten(self.network(self.chunk.unflatten(x), k.to(x.dtype), cond))
+        out = self._run_network(self.network, x, self.chunk.unflatten(x), k.to(x.dtype), cond)
+        return self.chunk.flatten(out)
 
     def ddim_timesteps(self, nfe: int) -> list[int]:
         total = self.cfg.num_diffusion_steps

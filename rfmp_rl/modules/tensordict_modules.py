@@ -159,24 +159,28 @@ class FlowPolicy(TensorDictModuleBase):
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         model = self.model
+        # inputs go to the model's device (an env on the CPU, a policy on a GPU); the action
+        # comes back on the device the observations came from
+        device = model.obs_normalizer.offset.device
         obs = images = gap = None
         if model.cfg.obs_dim > 0:
             obs = tensordict.get(self.observation_key)
-            leading = obs.shape[:-2]
-            obs = obs.reshape(-1, *obs.shape[-2:])  # (B, 2, D_obs)
+            leading, source = obs.shape[:-2], obs.device
+            obs = obs.reshape(-1, *obs.shape[-2:]).to(device)  # (B, 2, D_obs)
         if model.cameras:
             images = {}
             for name in model.cameras:
                 img = tensordict.get(self.camera_keys[name])
-                leading = img.shape[:-4]
-                images[name] = img.reshape(-1, *img.shape[-4:])  # (B, 2, C, H, W)
+                leading, source = img.shape[:-4], img.device
+                images[name] = img.reshape(-1, *img.shape[-4:]).to(device)  # (B, 2, C, H, W)
         if model.cfg.obs_horizon > 2:
-            gap = tensordict.get(self.gap_key).reshape(-1, 1)
+            gap = tensordict.get(self.gap_key).reshape(-1, 1).to(device)
         noise = tensordict.get(self.noise_key, None)
         if noise is not None:
-            noise = noise.reshape(-1, noise.shape[-1])
+            noise = noise.reshape(-1, noise.shape[-1]).to(device)
         deterministic = noise is None and exploration_type() == ExplorationType.DETERMINISTIC
         cond = model.encode(obs, images, gap)
         action = model.sample(cond, noise, deterministic=deterministic, **self.solver_kwargs)
-        tensordict.set(self.action_key, action.reshape(*leading, *action.shape[-2:]))
+        action = action.reshape(*leading, *action.shape[-2:]).to(source)
+        tensordict.set(self.action_key, action)
         return tensordict

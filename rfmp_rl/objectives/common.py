@@ -34,12 +34,19 @@ class ImitationLoss(LossModule):
             action: demonstrated action chunk ``(B, T_p, D)``.
             action_is_pad: padding mask ``(B, T_p)``, True where the step is padding.
             obs_gap: gap ``s - c`` between reference and context observation (T_o > 2).
+            prior_noise: optional standard-normal prior noise ``(B, noise_dim)``; when the batch
+                holds it the flows start from it instead of a fresh prior draw.
+            flow_time: optional training times ``(B, 1)`` (t; used instead of drawing them).
+                With both, a loss is a deterministic function of its batch (distributed and
+                reproducibility checks).
         """
 
         observation: NestedKey = keys.OBSERVATION
         action: NestedKey = keys.ACTION
         action_is_pad: NestedKey = keys.ACTION_IS_PAD
         obs_gap: NestedKey = keys.OBS_GAP
+        prior_noise: NestedKey = keys.PRIOR_NOISE
+        flow_time: NestedKey = keys.FLOW_TIME
 
     default_keys = _AcceptedKeys
 
@@ -114,8 +121,17 @@ class ImitationLoss(LossModule):
         model = self.model
         cond, x1, valid = self._read(tensordict)
         batch = x1.shape[0]
-        x0 = model.prior.sample(batch, dtype=x1.dtype, device=x1.device)
-        t = model.sample_times(batch, device=x1.device, dtype=x1.dtype)
+        k = self.tensor_keys
+        noise = tensordict.get(k.prior_noise, None)
+        if noise is None:
+            x0 = model.prior.sample(batch, dtype=x1.dtype, device=x1.device)
+        else:
+            x0 = model.prior.from_noise(noise.to(x1.dtype))
+        t = tensordict.get(k.flow_time, None)
+        if t is None:
+            t = model.sample_times(batch, device=x1.device, dtype=x1.dtype)
+        else:
+            t = t.reshape(batch, 1).to(x1.dtype)
         return cond, model.path.sample(x0, x1, t), valid
 
     def _per_step_sqnorm(self, x: torch.Tensor, err: torch.Tensor) -> torch.Tensor:

@@ -174,7 +174,7 @@ def integrate(
             times.append(t)
             states.append(x)
     if return_intermediates:
-        return x, torch.tensor(times, dtype=x0.dtype), torch.stack(states, dim=0)
+        return x, torch.tensor(times, dtype=x0.dtype, device=x0.device), torch.stack(states, dim=0)
     return x
 
 

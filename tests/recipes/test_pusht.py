@@ -118,3 +118,124 @@ def test_rollout_selection_seeds_must_not_overlap_the_evaluation_seeds(recipe):
         recipe["utils"].check_config(cfg)
     with pytest.raises(ValueError, match="train.select_by"):
         recipe["utils"].check_config(_cfg(["train.select_by=loss"]))
+
+
+def test_parallel_evaluation_matches_serial(recipe, tmp_path):
+    # eval.workers=2: two ParallelEnv workers (3 seeds, one padding seed dropped); prior noise
+    # per episode from its seed, so the scores equal the serial evaluation's.
+    run = recipe["train"].train(_cfg(["algo=srfmp", f"out_dir={tmp_path / 'run'}", *TINY,
+                                      "eval.final_eval=false"]))
+    common = [f"checkpoint={run / 'best.pt'}", "eval.seeds=3", "eval.nfes=[1]",
+              "eval.t_ends=[1.0]", "eval.time_table=[]", "eval.max_steps=16", "threads=1"]
+    (a,) = recipe["eval"].evaluate_checkpoint(_cfg([*common, f"eval.out={tmp_path / 's'}"]))
+    (b,) = recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.workers=2",
+                                                    f"eval.out={tmp_path / 'p'}"]))
+    assert b["seeds"] == a["seeds"] == "100000-100002" and b["env_steps"] == a["env_steps"]
+    for key in ("score", "score_std", "jerk"):
+        assert b[key] == pytest.approx(a[key], rel=1e-5), key
+
+
+# ----- resume and runtime settings -------------------------------------------------------------
+def _files(folder: Path) -> dict:
+    return {p: p.read_bytes() for p in folder.rglob("*") if p.is_file()}
+
+
+def test_resume_continues_the_run_in_place_from_its_own_config(recipe, tmp_path):
+    run = recipe["train"].train(_cfg(["algo=rfmp", f"out_dir={tmp_path / 'run'}", *TINY,
+                                      "eval.final_eval=false", "train.checkpoint_every=1"]))
+    # only the overrides given now apply on top of the run's config.yaml (algo=rfmp is kept)
+    again = recipe["train"].train(_cfg([f"resume={run}", "train.steps=4"]),
+                                  overrides=[f"resume={run}", "train.steps=4"])
+    assert again == run
+    payload = torch.load(run / "last.pt", weights_only=False)
+    assert payload["algorithm"] == "rfmp" and payload["training_state"]["step"] == 4
+    history = json.loads((run / "history.json").read_text())
+    assert [h["step"] for h in history] == [1, 2, 3, 4]
+    logged = next(run.glob("logs/**/val/loss.csv")).read_text().split()
+    assert [int(line.split(",")[0]) for line in logged] == [1, 2, 3, 4]
+
+
+def test_a_refused_resume_names_the_setting_and_leaves_the_run_untouched(recipe, tmp_path):
+    run = recipe["train"].train(_cfg(["algo=srfmp", f"out_dir={tmp_path / 'run'}", *TINY,
+                                      "eval.final_eval=false"]))
+    before = _files(run)
+    for override, message in (("algo=rfmp", "algo='rfmp' \\(the run has 'srfmp'\\)"),
+                              ("space=sphere", "space='sphere'"),
+                              ("horizon=8", "horizon=8")):
+        with pytest.raises(ValueError, match=message):
+            recipe["train"].train(_cfg([f"resume={run}", override]),
+                                  overrides=[f"resume={run}", override])
+    with pytest.raises(ValueError, match="has no last.pt"):
+        recipe["train"].train(_cfg([f"resume={tmp_path}"]), overrides=[f"resume={tmp_path}"])
+    with pytest.raises(ValueError, match="no training state"):
+        recipe["train"].train(_cfg([f"resume={run / 'best.pt'}"]),
+                              overrides=[f"resume={run / 'best.pt'}"])
+    from rfmp_rl.training.resume import resume_checkpoint
+
+    with pytest.raises(ValueError, match="a run of recipe 'pusht', not 'robosuite'"):
+        resume_checkpoint(run, "robosuite")
+    assert _files(run) == before
+
+
+@pytest.mark.parametrize("override,message", [
+    ("device=tpu", "device='tpu'"),
+    ("precision=fp8", "precision='fp8'"),
+    ("logger.backend=mlflow", "logger.backend='mlflow'"),
+    ("eval.workers=0", "eval.workers"),
+])
+def test_bad_runtime_settings_stop_at_start(recipe, tmp_path, override, message):
+    with pytest.raises(ValueError, match=message):
+        recipe["train"].train(_cfg([override, f"out_dir={tmp_path / 'run'}", *TINY]))
+    assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="checks the refusal on a machine without "
+                    "CUDA")
+@pytest.mark.parametrize("override,message", [
+    ("device=cuda", "device=cuda: CUDA was requested"),
+    ("precision=fp16", "precision=fp16 needs a CUDA device"),
+])
+def test_cuda_settings_without_cuda_stop_at_start(recipe, tmp_path, override, message):
+    with pytest.raises(ValueError, match=message):
+        recipe["train"].train(_cfg([override, "device=cpu" if "fp16" in override else "seed=0",
+                                    f"out_dir={tmp_path / 'run'}", *TINY]))
+    assert not (tmp_path / "run").exists()
+
+
+def test_torchrun_sigterm_saves_last_pt_and_the_run_resumes(tmp_path):
+    # two gloo ranks; SIGTERM to torchrun (as a cluster pre-empts a job) reaches both ranks,
+    # which agree on the step, write last.pt and exit 143; resume= finishes the run
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    run = tmp_path / "run"
+    args = [a for a in TINY if not a.startswith(("train.steps", "train.val_every"))]
+    torchrun = Path(sys.executable).parent / "torchrun"
+    cmd = [str(torchrun), "--standalone", "--nproc_per_node=2", str(RECIPE / "train.py"),
+           *args, "train.steps=100000", "train.val_every=100000", "train.checkpoint_every=100000",
+           "eval.final_eval=false", f"out_dir={run}", "device=cpu"]
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                            text=True)
+    deadline = time.time() + 240
+    loss_csv = None
+    while time.time() < deadline and loss_csv is None:
+        time.sleep(1)
+        found = list(run.glob("logs/**/train/loss.csv"))
+        if found and len(found[0].read_text().split()) >= 5:
+            loss_csv = found[0]
+    assert loss_csv is not None, "the run logged nothing within 4 minutes"
+    proc.send_signal(signal.SIGTERM)
+    out, _ = proc.communicate(timeout=120)
+    assert "SIGTERM: stopped at step" in out, out[-3000:]
+    assert proc.returncode != 0
+    state = torch.load(run / "last.pt", weights_only=False)["training_state"]
+    step = state["step"]
+    assert step >= 5 and state["world_size"] == 2 and len(state["rng"]) == 2
+    cmd = [str(torchrun), "--standalone", "--nproc_per_node=2", str(RECIPE / "train.py"),
+           f"resume={run}", f"train.steps={step + 3}"]
+    done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    assert torch.load(run / "last.pt", weights_only=False)["training_state"]["step"] == step + 3

@@ -103,6 +103,28 @@ def test_eval_script_uses_its_own_seeds(recipe, data_dir, tmp_path):
         recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.num_envs=0"]))
 
 
+def test_parallel_evaluation_gives_the_serial_per_seed_results(recipe, data_dir, tmp_path):
+    # eval.workers=2 steps the seeds in two TorchRL ParallelEnv workers (3 seeds: one padding
+    # seed on the second worker, dropped); each episode's prior noise comes from its own seed,
+    # so random sampling gives the same episodes as the serial evaluation.
+    cfg = _cfg(["task=Lift", f"out_dir={tmp_path / 'run'}", "eval.final_eval=false",
+                f"data.path={data_dir / 'Lift_delta.hdf5'}", *TINY])
+    run = recipe["train"].train(cfg)
+    common = [f"checkpoint={run / 'best.pt'}", "eval.seeds=3", "eval.seed_start=700",
+              "eval.nfes=[1]", "eval.max_steps=10", "threads=1"]
+    serial = recipe["eval"].evaluate_checkpoint(_cfg([*common, f"eval.out={tmp_path / 's'}"]))
+    parallel = recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.workers=2",
+                                                        f"eval.out={tmp_path / 'p'}"]))
+    (a,), (b,) = serial, parallel
+    assert b["seeds"] == a["seeds"] == "700-702"
+    assert b["per_seed"] == a["per_seed"] and b["env_steps"] == a["env_steps"]
+    assert len(b["per_seed_jerk"]) == 3
+    for x, y in zip(a["per_seed_jerk"], b["per_seed_jerk"], strict=True):
+        assert math.isclose(x, y, rel_tol=1e-4), (a["per_seed_jerk"], b["per_seed_jerk"])
+    with pytest.raises(ValueError, match="eval.workers"):
+        recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.workers=0"]))
+
+
 def test_missing_data_without_generation_names_the_file(recipe, tmp_path):
     cfg = _cfg(["task=Lift", f"data.path={tmp_path / 'none.hdf5'}", "data.generate=false",
                 f"out_dir={tmp_path / 'run'}", *TINY])

@@ -1,0 +1,495 @@
+"""The training engine every recipe calls: one update step, EMA, the learning-rate rule,
+validation and checkpoint selection, logging, checkpoints and resume, on any device, in any
+precision, compiled or eager, in one process or under ``torchrun`` (DDP).
+
+    runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile)
+    trainer = Trainer(model, train_rb, val_rb, runtime=runtime, run_dir=run_dir, recipe="pusht",
+                      optim=OptimConfig.from_config(cfg.optim),
+                      train=TrainConfig.from_config(cfg.train), config=cfg_as_dict,
+                      seed=cfg.seed, resume=None)
+    result = trainer.fit()
+
+One step (``update``)::
+
+    batch = rb.sample() -> device (pinned, non-blocking)      # each rank its own batches
+    loss  = sum of the loss_* entries (networks under autocast, manifold maps in fp32)
+    backward (DDP all-reduces the gradients; fp16: scaled)    # mean over ranks
+    AdamW step at lr(step, progress); EMA update              # identical on every rank
+
+Rank 0 alone validates, logs and writes checkpoints. ``last.pt`` is written atomically every
+``checkpoint_every`` steps, at the end, and when SIGTERM / SIGINT arrives (the step in flight
+finishes first); it holds what a resumed run needs to continue exactly where this one stopped:
+weights, EMA, optimiser, gradient scaler, step, elapsed minutes, the best score so far, the
+history, the logger's counters and every rank's RNG states (torch, CUDA, numpy, python, the
+replay buffer's sampler).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import torch
+import torch.distributed as dist
+from tensordict import TensorDictBase
+from torch import nn
+from torch.nn.parallel import DistributedDataParallel
+from tqdm import tqdm
+
+from rfmp_rl.checkpoint import read_checkpoint, save_checkpoint
+from rfmp_rl.modules.ema import EMA
+from rfmp_rl.objectives import make_loss
+from rfmp_rl.training.loggers import make_logger
+from rfmp_rl.training.runtime import Runtime, rng_state, set_rng_state
+
+__all__ = ["OptimConfig", "TrainConfig", "LoggerConfig", "FitResult", "Trainer", "lr_at",
+           "validation_loss", "compile_networks"]
+
+
+def _pick(cls, mapping: Mapping[str, Any] | None):
+    """A dataclass from the matching keys of ``mapping`` (recipes keep extra keys alongside)."""
+    names = {f.name for f in fields(cls)}
+    return cls(**{k: v for k, v in dict(mapping or {}).items() if k in names})
+
+
+@dataclass
+class OptimConfig:
+    """AdamW and the EMA (the paper: lr 1e-4, weight decay 1e-3, EMA 0.999)."""
+
+    lr: float = 1.0e-4
+    weight_decay: float = 1.0e-3
+    warmup_steps: int = 500  # linear warm-up, then a cosine decay to 0
+    ema_decay: float = 0.999
+
+    @classmethod
+    def from_config(cls, mapping) -> OptimConfig:
+        return _pick(cls, mapping)
+
+
+@dataclass
+class TrainConfig:
+    """The loop's budget and cadence (``batch_size`` is per rank: the global batch is
+    ``batch_size x world_size``)."""
+
+    steps: int = 12000
+    max_minutes: float = math.inf  # wall-clock cap; the lr decay follows whichever ends first
+    batch_size: int = 256
+    val_every: int = 500
+    val_batches: int = 8
+    log_every: int = 50
+    checkpoint_every: int = 500  # last.pt (resumable) every this many steps
+    select_by: str = "val_loss"  # best.pt: val_loss (lowest) | rollout (highest score)
+
+    def __post_init__(self) -> None:
+        for name in ("steps", "batch_size", "val_every", "val_batches", "log_every",
+                     "checkpoint_every"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"train.{name} must be >= 1, got {getattr(self, name)}")
+        if self.max_minutes is None:
+            self.max_minutes = math.inf
+        if float(self.max_minutes) <= 0:
+            raise ValueError(f"train.max_minutes must be > 0, got {self.max_minutes}")
+        if self.select_by not in ("val_loss", "rollout"):
+            raise ValueError(f"train.select_by must be 'val_loss' or 'rollout', got "
+                             f"{self.select_by!r}")
+
+    @classmethod
+    def from_config(cls, mapping) -> TrainConfig:
+        return _pick(cls, mapping)
+
+
+@dataclass
+class LoggerConfig:
+    """A TorchRL logger: ``csv`` (default), ``tensorboard``, ``wandb`` or ``none``."""
+
+    backend: str = "csv"
+    project: str = "rfmp_rl"  # wandb project
+    wandb_mode: str = "online"  # online | offline (no network; `wandb sync` uploads later)
+
+    @classmethod
+    def from_config(cls, mapping) -> LoggerConfig:
+        if isinstance(mapping, str):
+            return cls(backend=mapping)
+        return _pick(cls, mapping)
+
+
+@dataclass
+class FitResult:
+    steps: int
+    minutes: float
+    best: float  # the lowest validation loss, or the highest rollout score
+    best_step: int
+    interrupted: str | None = None  # the signal that stopped the run ("SIGTERM"), if any
+    history: list = field(default_factory=list)
+
+
+def lr_at(optim: OptimConfig, step: int, progress: float) -> float:
+    """Linear warm-up over ``warmup_steps``, then a cosine decay to 0 over the run's progress
+    ``max(step / steps, minutes / max_minutes)`` (a wall-clock-capped run still ends at 0)."""
+    progress = min(max(progress, 0.0), 1.0)
+    warm = min(1.0, step / max(1, int(optim.warmup_steps)))
+    return optim.lr * warm * 0.5 * (1 + math.cos(math.pi * progress))
+
+
+def _total_loss(out: TensorDictBase) -> torch.Tensor:
+    return sum(v for k, v in out.items() if k.startswith("loss_"))
+
+
+def validation_loss(loss_fn, data, batches: int, seed: int, runtime: Runtime | None = None
+                    ) -> float:
+    """Mean loss over ``batches`` fixed batches with fixed noise (comparable across calls);
+    the global RNG streams are left as they were."""
+    generator = getattr(getattr(data, "sampler", None), "generator", None)
+    saved = generator.get_state() if generator is not None else None
+    if generator is not None:
+        generator.manual_seed(seed)
+    total = 0.0
+    with torch.random.fork_rng(), torch.no_grad():
+        torch.manual_seed(seed)
+        for _ in range(batches):
+            batch = data.sample()
+            if runtime is not None:
+                batch = runtime.to_device(batch)
+            total += float(_total_loss(loss_fn(batch)))
+    if generator is not None:
+        generator.set_state(saved)
+    return total / batches
+
+
+def compile_networks(model: nn.Module) -> nn.Module:
+    """``torch.compile`` the network calls of a policy model in place (observation encoder and
+    UNet; state-dict keys, manifold maps and solver stay as they are)."""
+    model.network.compile()
+    model.obs_encoder.compile()
+    return model
+
+
+class _StepLoss(nn.Module):
+    """The summed loss as one module, so DDP sees one forward per step."""
+
+    def __init__(self, loss_fn: nn.Module) -> None:
+        super().__init__()
+        self.loss_fn = loss_fn
+
+    def forward(self, batch: TensorDictBase) -> torch.Tensor:
+        return _total_loss(self.loss_fn(batch))
+
+
+class _StopSignals:
+    """SIGTERM / SIGINT set a flag (the loop saves and stops after the step in flight); a second
+    SIGINT interrupts at once."""
+
+    def __init__(self) -> None:
+        self.received: str | None = None
+        self._previous: dict = {}
+
+    def __enter__(self) -> _StopSignals:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGTERM, signal.SIGINT):
+                self._previous[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        name = signal.Signals(signum).name
+        if self.received == "SIGINT" and name == "SIGINT":
+            raise KeyboardInterrupt
+        self.received = name
+
+    def __exit__(self, *exc) -> None:
+        for sig, handler in self._previous.items():
+            signal.signal(sig, handler)
+
+
+class Trainer:
+    """Trains one policy model (see the module docstring for the step and the checkpoints).
+
+    Args:
+        model: a `FlowModel` or `DiffusionModel` with fitted normalisers (on the CPU is fine;
+            it is moved to ``runtime.device``).
+        data: the training batches: anything with ``sample() -> TensorDict`` (a TorchRL replay
+            buffer); its ``sampler.generator``, when present, is saved and restored on resume.
+            Under DDP each rank passes its own (seeded by seed and rank).
+        val_data: the validation batches (rank 0 only; may be None on the other ranks).
+        runtime: from `setup_runtime`.
+        run_dir: where ``best.pt``, ``last.pt``, ``history.json`` and the logs go.
+        recipe: the recipe's name, stored in ``last.pt`` and checked on resume.
+        optim, train, logger: the settings.
+        config: the run's whole configuration (plain values), stored in every checkpoint.
+        seed: the validation noise seed.
+        camera_keys: ``{camera: batch key}`` for the loss.
+        rollout_score: ``f(ema_model) -> float`` (higher is better), computed at every
+            validation on rank 0; with ``train.select_by=rollout`` it chooses ``best.pt``.
+        resume: a ``last.pt`` to continue (see `rfmp_rl.training.resume`).
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> from rfmp_rl.data import DemonstrationStore
+        >>> from rfmp_rl.modules import ModelConfig, build_model
+        >>> from rfmp_rl.training import setup_runtime
+        >>> store = DemonstrationStore.from_episodes([TensorDict(
+        ...     {"observation": torch.randn(20, 3), "action": torch.randn(20, 2)}, [20])])
+        >>> rb = store.replay_buffer(4, ["observation"], batch_size=8)
+        >>> model = build_model(ModelConfig("rfmp", "R2", obs_dim=3, horizon=4,
+        ...                                 down_dims=[16, 32]))
+        >>> trainer = Trainer(model, rb, rb, runtime=setup_runtime("cpu"), run_dir="run",
+        ...                   recipe="toy", train=TrainConfig(steps=3, val_batches=1),
+        ...                   logger=LoggerConfig("none"), progress=False)
+        >>> trainer.fit().steps
+        trained 3 steps in ...
+        3
+        >>> sorted(p.name for p in Path("run").iterdir())
+        ['best.pt', 'history.json', 'last.pt']
+    """
+
+    def __init__(
+        self,
+        model: nn.Module,
+        data,
+        val_data,
+        *,
+        runtime: Runtime,
+        run_dir: str | Path,
+        recipe: str,
+        optim: OptimConfig | None = None,
+        train: TrainConfig | None = None,
+        logger: LoggerConfig | None = None,
+        config: Mapping[str, Any] | None = None,
+        seed: int = 0,
+        camera_keys: Mapping[str, Any] | None = None,
+        rollout_score: Callable[[nn.Module], float] | None = None,
+        resume: str | Path | None = None,
+        progress: bool = True,
+    ) -> None:
+        self.runtime, self.recipe = runtime, recipe
+        self.optim_cfg, self.train_cfg = optim or OptimConfig(), train or TrainConfig()
+        self.logger_cfg = logger or LoggerConfig()
+        self.run_dir, self.config, self.seed = Path(run_dir), dict(config or {}), int(seed)
+        self.data, self.val_data = data, val_data
+        self.rollout_score, self.progress = rollout_score, progress
+        if self.train_cfg.select_by == "rollout" and rollout_score is None:
+            raise ValueError("train.select_by=rollout needs a rollout_score function")
+        self.resume_state = None
+        if resume is not None:  # checked before anything is built or written
+            payload = read_checkpoint(resume)
+            check_resumable(payload, resume, recipe, model.cfg.to_dict(), runtime.world_size)
+            self.resume_state = payload
+
+        self.model = model.set_precision(runtime.precision).to(runtime.device)
+        self.ema = EMA(model, decay=self.optim_cfg.ema_decay)
+        self.loss_fn = make_loss(self.model, camera_keys)
+        self.val_loss_fn = make_loss(self.ema.module, camera_keys)
+        if runtime.compile:
+            compile_networks(self.model)
+            compile_networks(self.ema.module)
+        step_loss = _StepLoss(self.loss_fn)
+        if runtime.distributed:
+            ids = [runtime.device.index] if runtime.device.type == "cuda" else None
+            step_loss = DistributedDataParallel(step_loss, device_ids=ids,
+                                                forward_sync_buffers=False)
+        self.step_loss = step_loss
+        fused = runtime.device.type in ("cpu", "cuda")
+        self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=self.optim_cfg.lr,
+                                           weight_decay=self.optim_cfg.weight_decay, fused=fused)
+        self.scaler = torch.amp.GradScaler(runtime.device.type,
+                                           enabled=runtime.precision == "fp16")
+        self.step, self.minutes = 0, 0.0
+        self.sign = -1.0 if self.train_cfg.select_by == "rollout" else 1.0  # minimise sign * x
+        self.best, self.best_step, self.history = self.sign * math.inf, 0, []
+        self.logger_state = None
+        if self.resume_state is not None:
+            self._load_state(self.resume_state)
+
+    # ----- checkpoints -------------------------------------------------------------------------
+    def _generators(self) -> dict[str, torch.Generator]:
+        gen = getattr(getattr(self.data, "sampler", None), "generator", None)
+        return {"sampler": gen} if gen is not None else {}
+
+    def _gather_rng(self) -> list[dict]:
+        """Every rank's RNG states, in rank order (a collective under DDP)."""
+        mine = rng_state(self._generators())
+        if not self.runtime.distributed:
+            return [mine]
+        gathered = [None] * self.runtime.world_size
+        dist.all_gather_object(gathered, mine)
+        return gathered
+
+    def training_state(self, rng: list[dict], logger) -> dict:
+        return {
+            "recipe": self.recipe,
+            "step": self.step,
+            "minutes": self.minutes,
+            "optimizer": self.optimizer.state_dict(),
+            "scaler": self.scaler.state_dict(),
+            "best": self.best,
+            "best_step": self.best_step,
+            "select_by": self.train_cfg.select_by,
+            "history": self.history,
+            "world_size": self.runtime.world_size,
+            "rng": rng,
+            "logger": logger.state_dict() if logger is not None else None,
+            "logger_backend": self.logger_cfg.backend,
+        }
+
+    def save_last(self, logger) -> None:
+        """Write ``last.pt`` (collective under DDP: every rank must call it)."""
+        rng = self._gather_rng()
+        if self.runtime.is_main:
+            save_checkpoint(self.run_dir / "last.pt", self.model, self.ema, self.config,
+                            training_state=self.training_state(rng, logger), step=self.step,
+                            train_minutes=self.minutes)
+
+    def _load_state(self, payload: dict) -> None:
+        state = payload["training_state"]
+        self.model.load_state_dict(payload["state_dict"])
+        self.ema.module.load_state_dict(payload["ema_state_dict"])
+        self.ema.num_updates.fill_(int(payload.get("ema_num_updates", 0)))
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.scaler.load_state_dict(state["scaler"])
+        self.step, self.minutes = int(state["step"]), float(state["minutes"])
+        self.best, self.best_step = float(state["best"]), int(state["best_step"])
+        self.history = list(state["history"])
+        rngs = state["rng"]
+        if len(rngs) == self.runtime.world_size:
+            set_rng_state(rngs[self.runtime.rank], self._generators())
+        else:  # a different number of processes: fresh streams per rank, continued schedule
+            torch.manual_seed(self.seed + 7919 * self.step + self.runtime.rank)
+            if self.runtime.is_main:
+                print(f"resume: the run had {len(rngs)} process(es), this one has "
+                      f"{self.runtime.world_size}; random streams restart (schedule, weights and "
+                      "optimiser continue exactly)")
+        if state.get("logger_backend") == self.logger_cfg.backend:
+            self.logger_state = state.get("logger")
+
+    # ----- the loop ----------------------------------------------------------------------------
+    def update(self, batch: TensorDictBase, lr: float) -> torch.Tensor:
+        """One optimiser step on ``batch``; returns the (detached) loss."""
+        for group in self.optimizer.param_groups:
+            group["lr"] = lr
+        loss = self.step_loss(self.runtime.to_device(batch))
+        self.optimizer.zero_grad(set_to_none=True)
+        self.scaler.scale(loss).backward()
+        self.scaler.step(self.optimizer)
+        self.scaler.update()
+        self.ema.update(self.model)
+        return loss.detach()
+
+    def _agree(self, *flags: bool) -> list[bool]:
+        """Under DDP every rank acts on the same flags (any rank's True counts)."""
+        if not self.runtime.distributed:
+            return list(flags)
+        device = self.runtime.device if self.runtime.device.type == "cuda" else "cpu"
+        t = torch.tensor([float(f) for f in flags], device=device)
+        dist.all_reduce(t, op=dist.ReduceOp.MAX)
+        return [bool(v) for v in t.tolist()]
+
+    def _validate(self, logger, running: float | None) -> None:
+        """Rank 0: validation loss (and rollout score) of the EMA weights; keeps best.pt."""
+        model = self.ema.module
+        val = validation_loss(self.val_loss_fn, self.val_data, self.train_cfg.val_batches,
+                              self.seed, self.runtime)
+        entry = {"step": self.step, "minutes": self.minutes, "train": running, "val": val}
+        extra, criterion = {}, val
+        if logger is not None:
+            logger.log_scalar("val/loss", val, step=self.step)
+        if self.rollout_score is not None:
+            with torch.random.fork_rng():
+                score = float(self.rollout_score(model))
+            entry["rollout"] = extra["rollout_score"] = score
+            if logger is not None:
+                logger.log_scalar("val/rollout_score", score, step=self.step)
+            if self.train_cfg.select_by == "rollout":
+                criterion = score
+        self.history.append(entry)
+        if self.sign * criterion < self.sign * self.best or not self.best_step:
+            self.best, self.best_step = criterion, self.step
+            save_checkpoint(self.run_dir / "best.pt", self.model, self.ema, self.config,
+                            step=self.step, val_loss=val, train_minutes=self.minutes, **extra)
+
+    def fit(self) -> FitResult:
+        rt, cfg = self.runtime, self.train_cfg
+        main = rt.is_main
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        logger = None
+        if main:
+            logger = make_logger(self.logger_cfg, self.run_dir, self.config, self.logger_state)
+        self.model.train()
+        start_minutes, clock = self.minutes, time.perf_counter()
+        label = "score" if cfg.select_by == "rollout" else "val"
+        bar = tqdm(total=cfg.steps, initial=self.step, desc=f"train {self.recipe}", unit="step",
+                   dynamic_ncols=True, disable=not (main and self.progress))
+        running = None
+        interrupted = None
+        with _StopSignals() as signals:
+            while self.step < cfg.steps:
+                self.minutes = start_minutes + (time.perf_counter() - clock) / 60
+                self.step += 1
+                progress = max(self.step / cfg.steps, self.minutes / cfg.max_minutes)
+                lr = lr_at(self.optim_cfg, self.step, progress)
+                loss = self.update(self.data.sample(), lr)
+                running = loss if running is None else 0.98 * running + 0.02 * loss
+                bar.update(1)
+                if self.step % cfg.log_every == 0 and main:
+                    value = float(running)
+                    logger.log_scalar("train/loss", value, step=self.step)
+                    logger.log_scalar("train/lr", lr, step=self.step)
+                    bar.set_postfix({"loss": f"{value:.4f}", f"best_{label}": f"{self.best:.4f}"})
+                time_up = (start_minutes + (time.perf_counter() - clock) / 60) >= cfg.max_minutes
+                signalled, time_up = self._agree(signals.received is not None, time_up)
+                last = self.step == cfg.steps or time_up
+                if (self.step % cfg.val_every == 0 or last) and not signalled:
+                    if main:
+                        self._validate(logger, None if running is None else float(running))
+                    rt.barrier()
+                if self.step % cfg.checkpoint_every == 0 or last or signalled:
+                    self.save_last(logger)
+                if signalled:
+                    interrupted = signals.received or "signal on another rank"
+                    if main:
+                        print(f"\n{interrupted}: stopped at step {self.step}; last.pt holds the "
+                              f"run; continue with resume={self.run_dir}")
+                    break
+                if time_up:
+                    if main:
+                        print(f"\nstopping at step {self.step}: train.max_minutes="
+                              f"{cfg.max_minutes} reached")
+                    break
+        bar.close()
+        if main:
+            (self.run_dir / "history.json").write_text(json.dumps(self.history, indent=1))
+            what = "rollout score" if cfg.select_by == "rollout" else "validation loss"
+            if not interrupted:
+                print(f"trained {self.step} steps in {self.minutes:.1f} min; best {what} "
+                      f"{self.best:.4f} at step {self.best_step}")
+            if logger is not None and hasattr(logger, "experiment"):
+                finish = getattr(logger.experiment, "finish", None)
+                if callable(finish) and self.logger_cfg.backend == "wandb":
+                    finish()
+        return FitResult(self.step, self.minutes, self.best, self.best_step, interrupted,
+                         self.history)
+
+
+def check_resumable(payload: dict, path, recipe: str, model_config: dict, world_size: int
+                    ) -> None:
+    """Refuse a ``last.pt`` that cannot continue this run, naming what differs."""
+    state = payload.get("training_state")
+    if state is None:
+        raise ValueError(f"resume={path}: this checkpoint holds no training state (best.pt and "
+                         "checkpoints of older versions cannot be resumed; use the run's last.pt)")
+    if state.get("recipe") != recipe:
+        raise ValueError(f"resume={path}: a run of recipe {state.get('recipe')!r}, not "
+                         f"{recipe!r}")
+    stored = payload["model_config"]
+    differ = sorted(k for k in set(stored) | set(model_config)
+                    if stored.get(k) != model_config.get(k))
+    if differ:
+        details = ", ".join(f"{k}: run {stored.get(k)!r} vs now {model_config.get(k)!r}"
+                            for k in differ)
+        raise ValueError(f"resume={path}: the model differs from the run's ({details}); resume "
+                         "with the run's settings or start a new run")
