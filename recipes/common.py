@@ -118,6 +118,27 @@ def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name:
     return cfg, runtime, run_dir, last
 
 
+def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, make_model,
+                   what: str):
+    """The recipe's factories in order: stores, replay buffers (the training one seeded by seed
+    and rank, the validation one by seed), the model with fitted normalisers; rank 0 prints
+    what it built. Returns ``(model, rb, val_rb)``."""
+    from rfmp_rl.training import rank_seed
+
+    train_store, val_store = make_stores(cfg)
+    rb = make_replay_buffer(train_store, cfg, seed=rank_seed(cfg.seed, runtime.rank))
+    val_rb = make_replay_buffer(val_store, cfg, seed=cfg.seed + 1)
+    model = make_model(cfg, train_store)
+    if runtime.is_main:
+        print(train_store.manifest)
+        n_params = sum(p.numel() for p in model.parameters())
+        print(f"{what}: {n_params / 1e6:.2f}M parameters, {len(train_store)} training steps in "
+              f"{train_store.num_episodes} episodes; {runtime.world_size} process(es) on "
+              f"{runtime.device} ({cfg.precision}), global batch "
+              f"{cfg.train.batch_size * runtime.world_size}")
+    return model, rb, val_rb
+
+
 def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,
         camera_keys=None, rollout_score=None):
     """Train with the library's engine (`rfmp_rl.training.Trainer`) and the recipe's settings

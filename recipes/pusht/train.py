@@ -19,6 +19,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 from utils import (  # noqa: I001
+    build_training,
     check_config,
     eval_model,
     exit_code,
@@ -33,7 +34,6 @@ from utils import (  # noqa: I001
 )
 
 from rfmp_rl import keys
-from rfmp_rl.training import rank_seed
 
 #: Settings that define a run: a resumed run may not change them.
 FIXED = ("algo", "obs", "space", "prior", "prior_scale", "prior_repeat", "preset", "down_dims",
@@ -50,17 +50,8 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     cfg, runtime, run_dir, last = start_run(cfg, "pusht", FIXED, overrides,
                                             f"{cfg.algo}_{cfg.obs}_{cfg.space}_{stamp}")
     check_config(cfg)
-    train_store, val_store = make_stores(cfg)
-    rb = make_replay_buffer(train_store, cfg, seed=rank_seed(cfg.seed, runtime.rank))
-    val_rb = make_replay_buffer(val_store, cfg, seed=cfg.seed + 1)
-    model = make_model(cfg, train_store)
-    if runtime.is_main:
-        print(train_store.manifest)
-        n_params = sum(p.numel() for p in model.parameters())
-        print(f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space}): {n_params / 1e6:.2f}M parameters, "
-              f"{len(train_store)} training steps in {train_store.num_episodes} episodes; "
-              f"{runtime.world_size} process(es) on {runtime.device} ({cfg.precision}), global "
-              f"batch {cfg.train.batch_size * runtime.world_size}")
+    model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer,
+                                       make_model, f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})")
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
                  camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
                  rollout_score=selection_score(cfg))

@@ -19,6 +19,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the sh
 from common import (  # noqa: E402
     ALGOS,
     ROOT,
+    build_training,
     check_runtime_config,
     end_time,
     eval_model,
@@ -43,8 +44,8 @@ from rfmp_rl.eval.metrics import jerk  # noqa: E402
 from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
-__all__ = ["ROOT", "resolve", "end_time", "fit", "load_for_eval", "start_run", "eval_model",
-           "exit_code"]
+__all__ = ["ROOT", "build_training", "resolve", "end_time", "fit", "load_for_eval", "start_run",
+           "eval_model", "exit_code"]
 
 CONTROL_DT = 0.1  # Push-T runs at 10 Hz
 

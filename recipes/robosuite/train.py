@@ -20,6 +20,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 from utils import (  # noqa: I001
+    build_training,
     check_config,
     ensure_demos,
     eval_model,
@@ -32,8 +33,6 @@ from utils import (  # noqa: I001
     sweep,
     write_tables,
 )
-
-from rfmp_rl.training import rank_seed
 
 
 def show(row: dict) -> None:
@@ -60,17 +59,9 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     if runtime.is_main:
         ensure_demos(cfg)  # the scripted expert writes the file once, on rank 0
     runtime.barrier()
-    train_store, val_store = make_stores(cfg)
-    rb = make_replay_buffer(train_store, cfg, seed=rank_seed(cfg.seed, runtime.rank))
-    val_rb = make_replay_buffer(val_store, cfg, seed=cfg.seed + 1)
-    model = make_model(cfg, train_store)
-    if runtime.is_main:
-        print(train_store.manifest)
-        n_params = sum(p.numel() for p in model.parameters())
-        print(f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space}): {n_params / 1e6:.2f}M "
-              f"parameters, {len(train_store)} steps in {train_store.num_episodes} episodes; "
-              f"{runtime.world_size} process(es) on {runtime.device} ({cfg.precision}), global "
-              f"batch {cfg.train.batch_size * runtime.world_size}")
+    what = f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space})"
+    model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer,
+                                       make_model, what)
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last)
     train.result = result
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:

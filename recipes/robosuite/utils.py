@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the sh
 from common import (  # noqa: E402
     ALGOS,
     ROOT,
+    build_training,
     check_runtime_config,
     end_time,
     eval_model,
@@ -50,7 +51,8 @@ from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # 
 from rfmp_rl.manifolds.quaternion import hemisphere_continuous  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
-__all__ = ["ROOT", "fit", "end_time", "load_for_eval", "start_run", "eval_model", "exit_code"]
+__all__ = ["ROOT", "build_training", "fit", "end_time", "load_for_eval", "start_run",
+           "eval_model", "exit_code"]
 
 CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ

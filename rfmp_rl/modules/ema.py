@@ -34,9 +34,20 @@ class EMA(nn.Module):
         self.module = copy.deepcopy(model).eval()
         self.module.requires_grad_(False)
         self.register_buffer("num_updates", torch.tensor(0, dtype=torch.long))
+        self._count = 0  # a host copy of num_updates: no device sync per update on a GPU
+        self.register_load_state_dict_post_hook(EMA._sync_count)
+
+    @staticmethod
+    def _sync_count(module: EMA, incompatible_keys) -> None:
+        module._count = int(module.num_updates)
+
+    def set_num_updates(self, n: int) -> None:
+        """Restore the update count (e.g. when a run resumes)."""
+        self.num_updates.fill_(int(n))
+        self._count = int(n)
 
     def current_decay(self) -> float:
-        n = int(self.num_updates)
+        n = self._count
         return min(self.decay, (1 + n) / (10 + n)) if self.warmup else self.decay
 
     @torch.no_grad()
@@ -49,3 +60,4 @@ class EMA(nn.Module):
         for name, b in model.named_buffers():
             shadow_buffers[name].copy_(b)
         self.num_updates += 1
+        self._count += 1

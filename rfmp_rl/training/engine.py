@@ -47,10 +47,11 @@ from rfmp_rl.checkpoint import read_checkpoint, save_checkpoint
 from rfmp_rl.modules.ema import EMA
 from rfmp_rl.objectives import make_loss
 from rfmp_rl.training.loggers import make_logger
+from rfmp_rl.training.resume import check_resumable
 from rfmp_rl.training.runtime import Runtime, rng_state, set_rng_state
 
 __all__ = ["OptimConfig", "TrainConfig", "LoggerConfig", "FitResult", "Trainer", "lr_at",
-           "validation_loss", "compile_networks"]
+           "validation_loss", "compile_networks", "check_resumable"]
 
 
 def _pick(cls, mapping: Mapping[str, Any] | None):
@@ -278,7 +279,7 @@ class Trainer:
         self.resume_state = None
         if resume is not None:  # checked before anything is built or written
             payload = read_checkpoint(resume)
-            check_resumable(payload, resume, recipe, model.cfg.to_dict(), runtime.world_size)
+            check_resumable(payload, resume, recipe, model.cfg.to_dict())
             self.resume_state = payload
 
         self.model = model.set_precision(runtime.precision).to(runtime.device)
@@ -349,7 +350,7 @@ class Trainer:
         state = payload["training_state"]
         self.model.load_state_dict(payload["state_dict"])
         self.ema.module.load_state_dict(payload["ema_state_dict"])
-        self.ema.num_updates.fill_(int(payload.get("ema_num_updates", 0)))
+        self.ema.set_num_updates(int(payload.get("ema_num_updates", 0)))
         self.optimizer.load_state_dict(state["optimizer"])
         self.scaler.load_state_dict(state["scaler"])
         self.step, self.minutes = int(state["step"]), float(state["minutes"])
@@ -474,22 +475,3 @@ class Trainer:
         return FitResult(self.step, self.minutes, self.best, self.best_step, interrupted,
                          self.history)
 
-
-def check_resumable(payload: dict, path, recipe: str, model_config: dict, world_size: int
-                    ) -> None:
-    """Refuse a ``last.pt`` that cannot continue this run, naming what differs."""
-    state = payload.get("training_state")
-    if state is None:
-        raise ValueError(f"resume={path}: this checkpoint holds no training state (best.pt and "
-                         "checkpoints of older versions cannot be resumed; use the run's last.pt)")
-    if state.get("recipe") != recipe:
-        raise ValueError(f"resume={path}: a run of recipe {state.get('recipe')!r}, not "
-                         f"{recipe!r}")
-    stored = payload["model_config"]
-    differ = sorted(k for k in set(stored) | set(model_config)
-                    if stored.get(k) != model_config.get(k))
-    if differ:
-        details = ", ".join(f"{k}: run {stored.get(k)!r} vs now {model_config.get(k)!r}"
-                            for k in differ)
-        raise ValueError(f"resume={path}: the model differs from the run's ({details}); resume "
-                         "with the run's settings or start a new run")

@@ -17,7 +17,30 @@ from omegaconf import DictConfig, OmegaConf
 
 from rfmp_rl.checkpoint import read_checkpoint
 
-__all__ = ["resume_checkpoint", "resume_config"]
+__all__ = ["check_resumable", "resume_checkpoint", "resume_config"]
+
+
+def check_resumable(payload: dict, path, recipe: str, model_config: dict | None = None) -> None:
+    """Refuse a checkpoint that cannot continue a run of ``recipe`` (no training state: best.pt
+    or an older checkpoint; another recipe's run; with ``model_config``, a different model),
+    naming what differs."""
+    state = payload.get("training_state")
+    if state is None:
+        raise ValueError(f"resume={path}: this checkpoint holds no training state (best.pt and "
+                         "checkpoints of older versions cannot be resumed; use the run's last.pt)")
+    if state.get("recipe") != recipe:
+        raise ValueError(f"resume={path}: a run of recipe {state.get('recipe')!r}, not "
+                         f"{recipe!r}")
+    if model_config is None:
+        return
+    stored = payload["model_config"]
+    differ = sorted(k for k in set(stored) | set(model_config)
+                    if stored.get(k) != model_config.get(k))
+    if differ:
+        details = ", ".join(f"{k}: run {stored.get(k)!r} vs now {model_config.get(k)!r}"
+                            for k in differ)
+        raise ValueError(f"resume={path}: the model differs from the run's ({details}); resume "
+                         "with the run's settings or start a new run")
 
 
 def resume_checkpoint(path: str | Path, recipe: str) -> Path:
@@ -28,14 +51,7 @@ def resume_checkpoint(path: str | Path, recipe: str) -> Path:
     if not last.is_file():
         where = f"the folder {path} has no last.pt" if path.is_dir() else f"{path} does not exist"
         raise ValueError(f"resume={path}: {where} (give a run folder or its last.pt)")
-    payload = read_checkpoint(last)
-    state = payload.get("training_state")
-    if state is None:
-        raise ValueError(f"resume={path}: {last.name} holds no training state (best.pt and "
-                         "checkpoints of older versions cannot be resumed; use the run's last.pt)")
-    if state.get("recipe") != recipe:
-        raise ValueError(f"resume={path}: a run of recipe {state.get('recipe')!r}, not "
-                         f"{recipe!r}")
+    check_resumable(read_checkpoint(last), path, recipe)
     if not (last.parent / "config.yaml").is_file():
         raise ValueError(f"resume={path}: no config.yaml beside {last.name}")
     return last

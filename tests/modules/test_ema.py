@@ -23,7 +23,7 @@ def test_ema_tracks_the_weights_with_the_given_decay():
 def test_warmup_follows_diffusion_policy_and_caps_at_decay():
     ema = EMA(nn.Linear(1, 1), decay=0.999)
     assert ema.current_decay() == pytest.approx(0.1)
-    ema.num_updates.fill_(10_000)
+    ema.set_num_updates(10_000)
     assert ema.current_decay() == pytest.approx(0.999)
     with pytest.raises(ValueError, match="decay"):
         EMA(nn.Linear(1, 1), decay=1.0)
