@@ -91,7 +91,8 @@ def check_runtime_config(cfg: DictConfig) -> None:
                          f"{device.type}); use precision=bf16 or fp32")
     if not isinstance(cfg.get("compile", False), bool):
         raise ValueError(f"compile must be true or false, got {cfg.get('compile')!r}")
-    backend = cfg.get("logger", {}).get("backend", "csv")
+    logger = cfg.get("logger", "csv")
+    backend = logger if isinstance(logger, str) else logger.get("backend", "csv")
     if backend not in LOGGER_BACKENDS:
         raise ValueError(f"logger.backend={backend!r}: use one of {LOGGER_BACKENDS}")
     workers = cfg.get("eval", {}).get("workers", 1)
@@ -100,10 +101,13 @@ def check_runtime_config(cfg: DictConfig) -> None:
 
 
 def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name: str = "run"):
-    """Everything before the data: the runtime (device, precision, compile; the DDP process
-    group under torchrun), the resumed configuration (``resume=``), the seeds (by seed and
-    rank) and the run folder. Returns ``(cfg, runtime, run_dir, last.pt to resume or None)``.
-    Nothing is written here, so a refused setting leaves the run folder as it was."""
+    """Everything before the data: the resumed configuration (``resume=``), the runtime (device,
+    precision, compile; the DDP process group under torchrun), the seeds (by seed and rank) and
+    the run folder (rank 0's name on every rank). Returns ``(cfg, runtime, run_dir, last.pt to
+    resume or None)``. Nothing is written here, so a refused setting leaves every folder as it
+    was; a fresh run refuses a folder that already holds a run's ``last.pt``."""
+    import torch.distributed as dist
+
     from rfmp_rl.training import rank_seed, setup_runtime
     from rfmp_rl.training.resume import resume_checkpoint, resume_config
 
@@ -111,11 +115,16 @@ def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name:
     if cfg.get("resume"):
         last = resume_checkpoint(cfg.resume, recipe)
         cfg = resume_config(cfg, last, fixed, overrides)
+    elif cfg.out_dir and (Path(cfg.out_dir) / "last.pt").exists():
+        raise ValueError(f"out_dir={cfg.out_dir} already holds a run (last.pt): continue it with "
+                         f"resume={cfg.out_dir} or choose another out_dir")
     runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile)
     torch.set_num_threads(int(cfg.threads))
     torch.manual_seed(rank_seed(cfg.seed, runtime.rank))
-    run_dir = Path(cfg.out_dir or ROOT / "runs" / recipe / default_name)
-    return cfg, runtime, run_dir, last
+    name = [str(cfg.out_dir or ROOT / "runs" / recipe / default_name)]
+    if runtime.distributed:  # the ranks' clocks may name different folders: take rank 0's
+        dist.broadcast_object_list(name, src=0)
+    return cfg, runtime, Path(name[0]), last
 
 
 def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, make_model,

@@ -132,7 +132,8 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
         seed=cfg.seed,
     )
     start = time.perf_counter()
-    trainer.fit()
+    if trainer.fit().interrupted:
+        raise SystemExit(f"{algorithm}: training stopped by a signal (checkpoints in {run_dir})")
     return trainer.model, trainer.ema, time.perf_counter() - start
 
 
@@ -357,7 +358,7 @@ def main(cfg: DictConfig) -> None:
             config=OmegaConf.to_container(cfg, resolve=True),
             steps=cfg.steps,
         )
-        models[algorithm] = ema.module.eval().cpu()  # rolled out on the CPU, in fp32
+        models[algorithm] = ema.module.eval().cpu().set_precision("fp32")  # CPU rollouts, fp32
         train_seconds[algorithm] = seconds
 
     starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)

@@ -64,6 +64,7 @@ from rfmp_rl.training import (  # noqa: E402
 )
 
 TASKS = ("pusht_state", "pusht_image")
+TITLES = {"pusht_state": "Push-T state", "pusht_image": "Push-T image (96x96 camera)"}
 #: Push-T's actions and low-dim observations are pixel coordinates of the 512 x 512 board.
 PUSHT_RANGE = (0.0, 512.0)
 #: the task config names the Push-T camera ``image``; the recipe's batches hold it as ``pixels``
@@ -96,13 +97,20 @@ def recipe_config(obs: str, overrides: list[str] = ()):
 
 
 def default_zarr() -> Path:
-    """Where the Push-T recipe reads its demonstrations (``data.path`` of its config)."""
-    return _pusht_utils().resolve(recipe_config("state").data.path)
+    """Where the Push-T recipe reads its demonstrations (``data.path`` of its config; relative
+    paths from the repository root, as the recipe resolves them)."""
+    path = Path(recipe_config("state").data.path)
+    return path if path.is_absolute() else (ROOT / path).resolve()
 
 
 class SyntheticBatches:
     """``sample()``: random batches shaped like the Push-T replay buffer's (used when the zarr is
-    absent): pixel-range actions and observations, random ``uint8`` images."""
+    absent): pixel-range actions and observations, random ``uint8`` images.
+
+    Example:
+        >>> SyntheticBatches("pusht_image", batch=4, seed=0).sample()["pixels"].shape
+        torch.Size([4, 2, 3, 96, 96])
+    """
 
     def __init__(self, task: str, batch: int, seed: int, horizon: int = 16) -> None:
         cfg = task_config(task, "srfmp", "small")
@@ -189,7 +197,13 @@ def make_trainer(model, data: TaskData, runtime, run_dir: Path, batch: int) -> T
 # ----- timing ----------------------------------------------------------------------------------
 @dataclass
 class Timing:
-    """Per-step times of one setting (seconds)."""
+    """Per-step times of one setting (seconds).
+
+    Example:
+        >>> t = Timing("eager fp32", batch=256, sample=[0.01, 0.01], update=[0.09, 0.11])
+        >>> round(t.samples_per_s), f"{t.data_share:.0%}"
+        (2560, '9%')
+    """
 
     label: str
     batch: int  # samples per step, all processes together
@@ -239,7 +253,7 @@ def measure_variants(data: TaskData, batch: int, args, run_dir: Path) -> list[Ti
             if not math.isfinite(loss):
                 raise RuntimeError(f"{data.task} {label}: non-finite loss {loss} in warm-up")
         timings.append(timing)
-        print(f"  {label}: warm-up {sum(timing.warmup):.1f} s ({args.warmup} steps)", flush=True)
+        print(f"  {label}: warm-up {sum(timing.warmup):.1f} s ({args.warmup} step(s))", flush=True)
     for step in range(args.steps):
         shift = step % len(trainers)
         for i in [*range(shift, len(trainers)), *range(shift)]:
@@ -344,7 +358,7 @@ def bf16_flags() -> str:
 def section(task: str, source: str, timings: list[Timing], params: int) -> list[str]:
     """The markdown table and the summary lines of one task."""
     base = timings[0].samples_per_s
-    lines = [f"## {task.replace('_', ' ')} (batch {timings[0].batch})", "",
+    lines = [f"## {TITLES[task]} (batch {timings[0].batch})", "",
              f"Data: {source}. Model: {params / 1e6:.2f}M parameters.", "",
              "| setting | processes x threads | step ms (median) | samples/s | vs eager fp32 | "
              "data share | warm-up s (excluded) | note |",
@@ -362,7 +376,7 @@ def section(task: str, source: str, timings: list[Timing], params: int) -> list[
     compiled = by_label.get("compiled fp32")
     if compiled is not None:
         lines.append(f"- torch.compile: first step {compiled.warmup[0]:.1f} s, "
-                     f"{len(compiled.warmup)} warm-up steps {sum(compiled.warmup):.1f} s "
+                     f"{len(compiled.warmup)} warm-up step(s) {sum(compiled.warmup):.1f} s "
                      f"(eager fp32: {sum(timings[0].warmup):.1f} s); excluded from samples/s")
     one, two = by_label.get("DDP 1 process"), by_label.get("DDP 2 processes")
     if one is not None and two is not None:
@@ -379,20 +393,22 @@ def section(task: str, source: str, timings: list[Timing], params: int) -> list[
 
 def header(args, command: str, sources: list[str]) -> list[str]:
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
+    unet = f"UNet down dims {args.down_dims}" if args.down_dims else "small UNet"
+    gpu = ": the machine has no GPU" if not torch.cuda.is_available() else " (the GPU is not used)"
     return [
-        "# Training throughput on the CPU (Push-T, SRFMP, small UNet)", "",
+        f"# Training throughput on the CPU (Push-T, {args.algo.upper()}, {unet})", "",
         "Regenerate with:", "", "```", command, "```", "",
         f"Machine: {cpu_name()}, {os.cpu_count()} cores, torch {torch.__version__}, "
         f"{torch.get_num_threads()} torch thread(s) in the single-process rows "
         f"(OMP_NUM_THREADS={threads}), 1 thread per process under torchrun. Native bf16 "
         f"instructions: {bf16_flags()}.", "",
-        "**These are CPU figures: the machine has no GPU.** They compare settings on this CPU "
-        "only and say nothing about GPU speed-ups (`recipes/benchmarks/gpu_check.py` measures "
+        f"**These are CPU figures{gpu}.** They compare settings on this CPU only and say "
+        "nothing about GPU speed-ups (`recipes/benchmarks/gpu_check.py` measures "
         "those on a CUDA machine). bf16 autocast on a CPU without native bf16 support may be "
         "slower than fp32; what was measured is reported as measured, and a target missed is "
         "marked MISS.", "",
         f"Method: `Trainer.update` (forward, backward, fused AdamW, EMA) at lr {LR:g}; "
-        f"{args.warmup} warm-up steps per setting (excluded; torch.compile compiles there), then "
+        f"{args.warmup} warm-up step(s) per setting (excluded; torch.compile compiles there), then "
         f"{args.steps} timed steps. The single-process settings are interleaved (one step of "
         "each in turn, order rotating). samples/s = samples per step / median update time; "
         "under DDP the global batch is kept and split over the processes (rank 0's update "
@@ -464,9 +480,7 @@ def main(argv: list[str] | None = None) -> int:
                 except (RuntimeError, subprocess.TimeoutExpired) as err:
                     failures.append(f"{task} DDP {nproc}: {err}")
                     print(f"  FAILED: DDP {nproc}: {err}", flush=True)
-            lines = section(task, sources[-1].split(": ", 1)[1], timings, params)
-            print("\n".join(lines), flush=True)
-            body += lines + [""]
+            body += section(task, sources[-1].split(": ", 1)[1], timings, params) + [""]
     report = "\n".join(header(args, command, sources) + body)
     if failures:
         report += "\n## Failures\n\n" + "\n".join(f"- {f}" for f in failures) + "\n"

@@ -44,17 +44,32 @@ def _override(key: str, value) -> str:
     return f"'{text}'" if any(c in text for c in "[]{}") else text
 
 
-def train_command(cfg: dict, defaults: dict | None = None) -> str:
+def processes(run: Path) -> int:
+    """How many processes trained the run (``runtime.json``; older runs: ``last.pt``; 1)."""
+    info = run / "runtime.json"
+    if info.is_file():
+        return int(json.loads(info.read_text()).get("world_size", 1))
+    if (run / "last.pt").is_file():
+        import torch
+
+        state = torch.load(run / "last.pt", map_location="cpu", weights_only=True)
+        return int(state.get("training_state", {}).get("world_size", 1))
+    return 1
+
+
+def train_command(cfg: dict, defaults: dict | None = None, nproc: int = 1) -> str:
     """The training command that reproduces a run: ``algo obs space`` and every other setting
-    that differs from the recipe's ``config.yaml`` (batch size, evaluation grid, ...)."""
+    that differs from the recipe's ``config.yaml`` (batch size, evaluation grid, ...); a run of
+    several processes starts with its ``torchrun`` launch."""
     if defaults is None:
         defaults = yaml.safe_load(DEFAULTS.read_text())
     base = _leaves({k: v for k, v in defaults.items() if k not in NOT_TRAINING})
     mine = _leaves({k: v for k, v in cfg.items() if k not in NOT_TRAINING})
     keys = [k for k in ("algo", "obs", "space") if k in mine]
     keys += [k for k in mine if k not in keys and (k not in base or mine[k] != base[k])]
-    return ".venv/bin/python recipes/pusht/train.py " + " ".join(
-        _override(k, mine[k]) for k in keys)
+    launch = (".venv/bin/python" if nproc == 1 else
+              f"OMP_NUM_THREADS=1 .venv/bin/torchrun --standalone --nproc_per_node={nproc}")
+    return f"{launch} recipes/pusht/train.py " + " ".join(_override(k, mine[k]) for k in keys)
 
 
 def _name(cfg: dict) -> str:
@@ -117,11 +132,15 @@ def main(argv: list[str] | None = None) -> str:
         scores = {(int(r["nfe"]), float(r["t_end"])): float(r["score"]) for r in rows}
         summary[name] = scores
         groups.setdefault(group, []).append((run.name, cfg["seed"], scores))
+        nproc = processes(run)
+        where = ("on this 2-core CPU" if nproc == 1 else
+                 f"on this 2-core CPU by {nproc} processes (DDP, gloo; global batch "
+                 f"{nproc * cfg['train']['batch_size']})")
         sections += [
             f"## {name}",
             "",
-            f"Training: `{train_command(cfg, defaults)}` — {last['step']} steps in "
-            f"{last['minutes']:.1f} min on this 2-core CPU ({chosen} at step {best['step']}, "
+            f"Training: `{train_command(cfg, defaults, nproc)}` — {last['step']} steps in "
+            f"{last['minutes']:.1f} min {where} ({chosen} at step {best['step']}, "
             f"{best['minutes']:.1f} min; that checkpoint is evaluated).",
             "",
             "Task settings: " + ", ".join(f"{k}={cfg.get(k)}" for k in TASK_KEYS if k in cfg),

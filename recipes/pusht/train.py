@@ -34,17 +34,23 @@ from utils import (  # noqa: I001
 )
 
 from rfmp_rl import keys
+from rfmp_rl.training import FitResult
 
 #: Settings that define a run: a resumed run may not change them.
 FIXED = ("algo", "obs", "space", "prior", "prior_scale", "prior_repeat", "preset", "down_dims",
          "horizon", "action_steps", "obs_horizon", "lambda_x", "lambda_tau", "time_max",
-         "t0_fraction")
+         "t0_fraction", "seed")
 
 
 def train(cfg: DictConfig, overrides=None) -> Path:
     """Train, keep the best checkpoint, optionally evaluate it; returns the run folder.
     ``overrides``: the command line's explicit overrides (applied on top of a resumed run's
     configuration)."""
+    return run(cfg, overrides)[0]
+
+
+def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
+    """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
     check_config(cfg)
     stamp = datetime.now().strftime("%Y%m%d_%H%M%S")
     cfg, runtime, run_dir, last = start_run(cfg, "pusht", FIXED, overrides,
@@ -55,7 +61,6 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
                  camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
                  rollout_score=selection_score(cfg))
-    train.result = result
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
         best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
 
@@ -72,15 +77,15 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     if runtime.is_main:
         print(f"run folder: {run_dir}")
     runtime.shutdown()
-    return run_dir
+    return run_dir, result
 
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
-    train(cfg, overrides=list(HydraConfig.get().overrides.task))
-    raise SystemExit(exit_code(train.result))
+    _, result = run(cfg, overrides=list(HydraConfig.get().overrides.task))
+    raise SystemExit(exit_code(result))
 
 
 if __name__ == "__main__":

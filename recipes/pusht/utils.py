@@ -168,9 +168,12 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float) -> dict:
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     torch.manual_seed(int(cfg.seed))
     start = time.perf_counter()
-    with set_exploration_type(mode):
-        out = env.rollout(int(cfg.eval.max_steps), actor, break_when_any_done=False,
-                          break_when_all_done=True)
+    try:
+        with set_exploration_type(mode):
+            out = env.rollout(int(cfg.eval.max_steps), actor, break_when_any_done=False,
+                              break_when_all_done=True)
+    finally:
+        env.close()  # worker processes end even when a rollout fails
     out = flatten_workers(out, len(seeds))
     seconds = time.perf_counter() - start
     score = out["next", "max_coverage"][:, -1, 0]  # (N,)
@@ -184,7 +187,6 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float) -> dict:
             jerks.append(float(jerk(executed.double(), CONTROL_DT)))
         if cfg.space == "sphere":
             manifold_err = max(manifold_err, float((executed.norm(dim=-1) - 1).abs().max()))
-    env.close()
     return {
         "algo": cfg.algo,
         "nfe": nfe,

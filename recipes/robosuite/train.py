@@ -34,6 +34,8 @@ from utils import (  # noqa: I001
     write_tables,
 )
 
+from rfmp_rl.training import FitResult
+
 
 def show(row: dict) -> None:
     print(f"  NFE={row['nfe']:<2} T={row['t_end']:.1f}: success {row['success']:.2f}, "
@@ -43,13 +45,18 @@ def show(row: dict) -> None:
 #: Settings that define a run: a resumed run may not change them.
 FIXED = ("task", "algo", "obs", "action_space", "geometry", "prior", "prior_scale",
          "prior_repeat", "preset", "down_dims", "horizon", "action_steps", "obs_horizon",
-         "lambda_x", "lambda_tau", "time_max", "t0_fraction")
+         "lambda_x", "lambda_tau", "time_max", "t0_fraction", "seed")
 
 
 def train(cfg: DictConfig, overrides=None) -> Path:
     """Train, keep the best checkpoint, optionally evaluate it; returns the run folder.
     ``overrides``: the command line's explicit overrides (applied on top of a resumed run's
     configuration)."""
+    return run(cfg, overrides)[0]
+
+
+def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
+    """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
     check_config(cfg)
     stamp = datetime.now().strftime("%Y%m%d_%H%M%S")
     cfg, runtime, run_dir, last = start_run(
@@ -63,7 +70,6 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer,
                                        make_model, what)
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last)
-    train.result = result
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
         best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
         rows = sweep(best_model, cfg, progress=show)
@@ -75,15 +81,15 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     if runtime.is_main:
         print(f"run folder: {run_dir}")
     runtime.shutdown()
-    return run_dir
+    return run_dir, result
 
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
-    train(cfg, overrides=list(HydraConfig.get().overrides.task))
-    raise SystemExit(exit_code(train.result))
+    _, result = run(cfg, overrides=list(HydraConfig.get().overrides.task))
+    raise SystemExit(exit_code(result))
 
 
 if __name__ == "__main__":

@@ -55,21 +55,35 @@ class PriorNoise(Transform):
         super().__init__(in_keys=[], out_keys=[out_key])
         self.noise_dim, self.noise_seed, self.out_key = int(noise_dim), int(noise_seed), out_key
         self._generators: list[torch.Generator] = []
+        self._last: torch.Tensor | None = None
 
-    def _draw(self, like: TensorDictBase) -> torch.Tensor:
-        rows = [torch.randn(self.noise_dim, generator=g) for g in self._generators]
-        return torch.stack(rows).to(like.device).reshape(*like.batch_size, self.noise_dim)
+    def _draw(self, like: TensorDictBase, rows: list[bool] | None = None) -> torch.Tensor:
+        """The next noise of every env (or of the ``rows`` envs; the others keep theirs, so an
+        env's stream never depends on when its neighbours reset)."""
+        fresh = [torch.randn(self.noise_dim, generator=g) if rows is None or rows[i]
+                 else self._last[i] for i, g in enumerate(self._generators)]
+        self._last = torch.stack(fresh)
+        return self._last.to(like.device).reshape(*like.batch_size, self.noise_dim)
 
     def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
                ) -> TensorDictBase:
         seeds = tensordict_reset.get("seed", None)
         if seeds is None:
             raise KeyError("PriorNoise needs the env to write its reset seeds in 'seed'")
-        self._generators = [
-            torch.Generator().manual_seed(int(s) + 1_000_003 * self.noise_seed)
-            for s in seeds.reshape(-1).tolist()
-        ]
-        tensordict_reset.set(self.out_key, self._draw(tensordict_reset))
+        seeds = seeds.reshape(-1).tolist()
+        mask = tensordict.get("_reset", None) if tensordict is not None else None
+        if mask is None or len(self._generators) != len(seeds):
+            mask = [True] * len(seeds)
+        else:  # a partial reset: only the envs that restart get a new stream
+            mask = mask.reshape(len(seeds), -1).any(-1).tolist()
+        generators = list(self._generators) or [None] * len(seeds)
+        for i, (seed, restart) in enumerate(zip(seeds, mask, strict=True)):
+            if restart:
+                generators[i] = torch.Generator().manual_seed(
+                    int(seed) + 1_000_003 * self.noise_seed)
+        partial = self._last is not None and not all(mask)
+        self._generators = generators
+        tensordict_reset.set(self.out_key, self._draw(tensordict_reset, mask if partial else None))
         return tensordict_reset
 
     def _step(self, tensordict: TensorDictBase, next_tensordict: TensorDictBase
@@ -102,8 +116,8 @@ class FlatBatch(TensorDictModuleBase):
         return tensordict
 
 
-def _make(make_env: Callable[..., EnvBase], seeds: list[int], noise_dim: int | None,
-          noise_seed: int, kwargs: dict) -> EnvBase:
+def _make(make_env: Callable[..., EnvBase], seeds: list[int] | None = None, *,
+          noise_dim: int | None, noise_seed: int, kwargs: dict) -> EnvBase:
     env = make_env(batch_size=[len(seeds)], seeds=seeds, **kwargs)
     if noise_dim:
         env.append_transform(PriorNoise(noise_dim, noise_seed))
@@ -132,16 +146,19 @@ def evaluation_env(make_env: Callable[..., EnvBase], seeds: Sequence[int], worke
     seeds = [int(s) for s in seeds]
     if int(workers) < 1:
         raise ValueError(f"eval.workers must be >= 1, got {workers}")
-    workers = min(int(workers), len(seeds))
+    per = math.ceil(len(seeds) / int(workers))
+    workers = math.ceil(len(seeds) / per)  # no worker of padding seeds only
     if workers == 1:
-        return _make(make_env, seeds, noise_dim, noise_seed, kwargs), len(seeds)
-    per = math.ceil(len(seeds) / workers)
+        return _make(make_env, seeds, noise_dim=noise_dim, noise_seed=noise_seed,
+                     kwargs=kwargs), len(seeds)
     padded = seeds + [seeds[-1] + 1 + i for i in range(per * workers - len(seeds))]
-    shares = [padded[w * per:(w + 1) * per] for w in range(workers)]
-    fns = [functools.partial(_make, make_env, share, noise_dim, noise_seed, kwargs)
-           for share in shares]
+    shares = [{"seeds": padded[w * per:(w + 1) * per]} for w in range(workers)]
+    # one factory with per-worker arguments: TorchRL reads the specs of one env, not of each;
     # num_threads: leave this process's torch threads as they are; each worker steps on one
-    env = ParallelEnv(workers, fns, num_threads=torch.get_num_threads(), num_sub_threads=1)
+    factory = functools.partial(_make, make_env, noise_dim=noise_dim, noise_seed=noise_seed,
+                                kwargs=kwargs)
+    env = ParallelEnv(workers, factory, create_env_kwargs=shares,
+                      num_threads=torch.get_num_threads(), num_sub_threads=1)
     return env, len(seeds)
 
 

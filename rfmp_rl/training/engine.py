@@ -48,7 +48,7 @@ from rfmp_rl.modules.ema import EMA
 from rfmp_rl.objectives import make_loss
 from rfmp_rl.training.loggers import make_logger
 from rfmp_rl.training.resume import check_resumable
-from rfmp_rl.training.runtime import Runtime, rng_state, set_rng_state
+from rfmp_rl.training.runtime import Runtime, rank_seed, rng_state, set_rng_state
 
 __all__ = ["OptimConfig", "TrainConfig", "LoggerConfig", "FitResult", "Trainer", "lr_at",
            "validation_loss", "compile_networks", "check_resumable"]
@@ -189,6 +189,7 @@ class _StopSignals:
 
     def __init__(self) -> None:
         self.received: str | None = None
+        self._first = 0.0
         self._previous: dict = {}
 
     def __enter__(self) -> _StopSignals:
@@ -199,9 +200,13 @@ class _StopSignals:
 
     def _handle(self, signum, frame) -> None:
         name = signal.Signals(signum).name
-        if self.received == "SIGINT" and name == "SIGINT":
+        now = time.monotonic()
+        # torchrun forwards the terminal's Ctrl-C to workers that already received it: only a
+        # second SIGINT more than 2 s after the first interrupts at once
+        if self.received == "SIGINT" and name == "SIGINT" and now - self._first > 2.0:
             raise KeyboardInterrupt
-        self.received = name
+        if self.received is None:
+            self.received, self._first = name, now
 
     def __exit__(self, *exc) -> None:
         for sig, handler in self._previous.items():
@@ -280,21 +285,26 @@ class Trainer:
         if resume is not None:  # checked before anything is built or written
             payload = read_checkpoint(resume)
             check_resumable(payload, resume, recipe, model.cfg.to_dict())
+            stored = payload["training_state"].get("select_by", self.train_cfg.select_by)
+            if stored != self.train_cfg.select_by:
+                raise ValueError(f"resume={resume}: train.select_by={self.train_cfg.select_by} "
+                                 f"but the run keeps best.pt by {stored} (its best score is of "
+                                 "that kind); resume with the run's setting")
             self.resume_state = payload
 
         self.model = model.set_precision(runtime.precision).to(runtime.device)
-        self.ema = EMA(model, decay=self.optim_cfg.ema_decay)
         self.loss_fn = make_loss(self.model, camera_keys)
-        self.val_loss_fn = make_loss(self.ema.module, camera_keys)
-        if runtime.compile:
-            compile_networks(self.model)
-            compile_networks(self.ema.module)
         step_loss = _StepLoss(self.loss_fn)
-        if runtime.distributed:
+        if runtime.distributed:  # wrapping copies rank 0's weights and buffers to every rank
             ids = [runtime.device.index] if runtime.device.type == "cuda" else None
             step_loss = DistributedDataParallel(step_loss, device_ids=ids,
                                                 forward_sync_buffers=False)
         self.step_loss = step_loss
+        self.ema = EMA(self.model, decay=self.optim_cfg.ema_decay)  # after: the same on all ranks
+        self.val_loss_fn = make_loss(self.ema.module, camera_keys)
+        if runtime.compile:
+            compile_networks(self.model)
+            compile_networks(self.ema.module)
         fused = runtime.device.type in ("cpu", "cuda")
         self.optimizer = torch.optim.AdamW(self.model.parameters(), lr=self.optim_cfg.lr,
                                            weight_decay=self.optim_cfg.weight_decay, fused=fused)
@@ -303,6 +313,8 @@ class Trainer:
         self.step, self.minutes = 0, 0.0
         self.sign = -1.0 if self.train_cfg.select_by == "rollout" else 1.0  # minimise sign * x
         self.best, self.best_step, self.history = self.sign * math.inf, 0, []
+        self.running: torch.Tensor | float | None = None  # smoothed training loss
+        self.pending_validation = False  # stopped on a validation step before validating
         self.logger_state = None
         if self.resume_state is not None:
             self._load_state(self.resume_state)
@@ -332,6 +344,8 @@ class Trainer:
             "best_step": self.best_step,
             "select_by": self.train_cfg.select_by,
             "history": self.history,
+            "running": None if self.running is None else float(self.running),
+            "pending_validation": bool(self.pending_validation),
             "world_size": self.runtime.world_size,
             "rng": rng,
             "logger": logger.state_dict() if logger is not None else None,
@@ -352,21 +366,28 @@ class Trainer:
         self.ema.module.load_state_dict(payload["ema_state_dict"])
         self.ema.set_num_updates(int(payload.get("ema_num_updates", 0)))
         self.optimizer.load_state_dict(state["optimizer"])
-        self.scaler.load_state_dict(state["scaler"])
+        if state["scaler"] and self.scaler.is_enabled():  # fp16 runs only (empty otherwise)
+            self.scaler.load_state_dict(state["scaler"])
         self.step, self.minutes = int(state["step"]), float(state["minutes"])
         self.best, self.best_step = float(state["best"]), int(state["best_step"])
         self.history = list(state["history"])
+        self.running = state.get("running")
+        self.pending_validation = bool(state.get("pending_validation", False))
         rngs = state["rng"]
         if len(rngs) == self.runtime.world_size:
             set_rng_state(rngs[self.runtime.rank], self._generators())
         else:  # a different number of processes: fresh streams per rank, continued schedule
-            torch.manual_seed(self.seed + 7919 * self.step + self.runtime.rank)
+            fresh = rank_seed(self.seed + 7919 * self.step, self.runtime.rank)
+            torch.manual_seed(fresh)
+            for gen in self._generators().values():
+                gen.manual_seed(fresh + 1)
             if self.runtime.is_main:
                 print(f"resume: the run had {len(rngs)} process(es), this one has "
                       f"{self.runtime.world_size}; random streams restart (schedule, weights and "
                       "optimiser continue exactly)")
-        if state.get("logger_backend") == self.logger_cfg.backend:
-            self.logger_state = state.get("logger")
+        if state.get("logger_backend") == self.logger_cfg.backend and state.get("logger"):
+            # the logs stay with the run folder, wherever it has moved since
+            self.logger_state = {**state["logger"], "log_dir": str(self.run_dir.resolve())}
 
     # ----- the loop ----------------------------------------------------------------------------
     def update(self, batch: TensorDictBase, lr: float) -> torch.Tensor:
@@ -381,20 +402,21 @@ class Trainer:
         self.ema.update(self.model)
         return loss.detach()
 
-    def _agree(self, *flags: bool) -> list[bool]:
-        """Under DDP every rank acts on the same flags (any rank's True counts)."""
+    def _agree(self, minutes: float, flag: bool) -> tuple[float, bool]:
+        """Under DDP every rank acts on the same values: the largest elapsed minutes and any
+        rank's flag (one small all-reduce on the CPU side group: no GPU sync)."""
         if not self.runtime.distributed:
-            return list(flags)
-        device = self.runtime.device if self.runtime.device.type == "cuda" else "cpu"
-        t = torch.tensor([float(f) for f in flags], device=device)
-        dist.all_reduce(t, op=dist.ReduceOp.MAX)
-        return [bool(v) for v in t.tolist()]
+            return minutes, flag
+        t = torch.tensor([minutes, float(flag)], dtype=torch.float64)
+        dist.all_reduce(t, op=dist.ReduceOp.MAX, group=self.runtime.cpu_group)
+        return float(t[0]), bool(t[1])
 
-    def _validate(self, logger, running: float | None) -> None:
+    def _validate(self, logger) -> None:
         """Rank 0: validation loss (and rollout score) of the EMA weights; keeps best.pt."""
         model = self.ema.module
         val = validation_loss(self.val_loss_fn, self.val_data, self.train_cfg.val_batches,
                               self.seed, self.runtime)
+        running = None if self.running is None else float(self.running)
         entry = {"step": self.step, "minutes": self.minutes, "train": running, "val": val}
         extra, criterion = {}, val
         if logger is not None:
@@ -416,38 +438,42 @@ class Trainer:
     def fit(self) -> FitResult:
         rt, cfg = self.runtime, self.train_cfg
         main = rt.is_main
-        self.run_dir.mkdir(parents=True, exist_ok=True)
         logger = None
         if main:
+            self.run_dir.mkdir(parents=True, exist_ok=True)
             logger = make_logger(self.logger_cfg, self.run_dir, self.config, self.logger_state)
+            (self.run_dir / "runtime.json").write_text(json.dumps(self.runtime_info(), indent=1))
         self.model.train()
+        # every rank starts the clock after the logger, and the minutes that drive the lr
+        # schedule and the time cap are agreed (the maximum over ranks) after every step
+        rt.barrier()
         start_minutes, clock = self.minutes, time.perf_counter()
         label = "score" if cfg.select_by == "rollout" else "val"
         bar = tqdm(total=cfg.steps, initial=self.step, desc=f"train {self.recipe}", unit="step",
                    dynamic_ncols=True, disable=not (main and self.progress))
-        running = None
         interrupted = None
         with _StopSignals() as signals:
+            if self.pending_validation:  # the run stopped on a validation step before it ran
+                self._validate_all(logger, signals)
             while self.step < cfg.steps:
-                self.minutes = start_minutes + (time.perf_counter() - clock) / 60
                 self.step += 1
                 progress = max(self.step / cfg.steps, self.minutes / cfg.max_minutes)
                 lr = lr_at(self.optim_cfg, self.step, progress)
                 loss = self.update(self.data.sample(), lr)
-                running = loss if running is None else 0.98 * running + 0.02 * loss
+                self.running = loss if self.running is None else 0.98 * self.running + 0.02 * loss
                 bar.update(1)
                 if self.step % cfg.log_every == 0 and main:
-                    value = float(running)
+                    value = float(self.running)
                     logger.log_scalar("train/loss", value, step=self.step)
                     logger.log_scalar("train/lr", lr, step=self.step)
                     bar.set_postfix({"loss": f"{value:.4f}", f"best_{label}": f"{self.best:.4f}"})
-                time_up = (start_minutes + (time.perf_counter() - clock) / 60) >= cfg.max_minutes
-                signalled, time_up = self._agree(signals.received is not None, time_up)
+                elapsed = start_minutes + (time.perf_counter() - clock) / 60
+                self.minutes, signalled = self._agree(elapsed, signals.received is not None)
+                time_up = self.minutes >= cfg.max_minutes
                 last = self.step == cfg.steps or time_up
-                if (self.step % cfg.val_every == 0 or last) and not signalled:
-                    if main:
-                        self._validate(logger, None if running is None else float(running))
-                    rt.barrier()
+                self.pending_validation = self.step % cfg.val_every == 0 or last
+                if self.pending_validation and not signalled:
+                    signalled = self._validate_all(logger, signals)
                 if self.step % cfg.checkpoint_every == 0 or last or signalled:
                     self.save_last(logger)
                 if signalled:
@@ -468,10 +494,28 @@ class Trainer:
             if not interrupted:
                 print(f"trained {self.step} steps in {self.minutes:.1f} min; best {what} "
                       f"{self.best:.4f} at step {self.best_step}")
-            if logger is not None and hasattr(logger, "experiment"):
-                finish = getattr(logger.experiment, "finish", None)
-                if callable(finish) and self.logger_cfg.backend == "wandb":
-                    finish()
+            if logger is not None and self.logger_cfg.backend == "wandb":
+                logger.experiment.finish()
         return FitResult(self.step, self.minutes, self.best, self.best_step, interrupted,
                          self.history)
 
+    def _validate_all(self, logger, signals) -> bool:
+        """Rank 0 validates while the others wait; returns whether a stop signal arrived (a
+        signal during a rollout may end it early: the validation then counts as not run)."""
+        if self.runtime.is_main:
+            try:
+                self._validate(logger)
+                self.pending_validation = False
+            except Exception:
+                if signals.received is None:
+                    raise
+                print(f"\n{signals.received} during validation at step {self.step}: it runs "
+                      "again when the run resumes")
+        self.runtime.barrier()
+        return self._agree(0.0, signals.received is not None)[1]
+
+    def runtime_info(self) -> dict:
+        """How the run executes (written to ``runtime.json``; the results' commands read it)."""
+        return {"world_size": self.runtime.world_size, "device": str(self.runtime.device),
+                "precision": self.runtime.precision, "compile": self.runtime.compile,
+                "torch": torch.__version__}

@@ -81,7 +81,14 @@ def resume_config(cfg: DictConfig, last: Path, fixed: Sequence[str],
         merged = OmegaConf.merge(stored, cfg)
     else:
         given = [o for o in overrides if not o.lstrip("+~").startswith("resume=")]
-        merged = OmegaConf.merge(stored, OmegaConf.from_dotlist([o.lstrip("+") for o in given]))
+        removed = [o for o in given if o.startswith("~")]
+        if removed:
+            raise ValueError(f"resume={last.parent}: {removed[0]!r} removes a setting, which a "
+                             "resumed run cannot do; override its value instead")
+        # the recipe's current defaults (settings added since the run), the run's own
+        # configuration, then what this command line sets
+        merged = OmegaConf.merge(cfg, stored,
+                                 OmegaConf.from_dotlist([o.lstrip("+") for o in given]))
     merged.resume = str(last.parent)
     merged.out_dir = str(last.parent)
     changed = [k for k in fixed if _get(stored, k) != _get(merged, k)]

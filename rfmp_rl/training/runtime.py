@@ -77,6 +77,7 @@ class Runtime:
     rank: int = 0
     world_size: int = 1
     local_rank: int = 0
+    cpu_group: object = None  # a gloo group for small control messages (stop flags, minutes)
 
     @property
     def distributed(self) -> bool:
@@ -157,8 +158,10 @@ def setup_runtime(device: str = "auto", precision: str = "fp32", compile: bool =
         dist.init_process_group(backend="nccl" if dev.type == "cuda" else "gloo",
                                 device_id=dev if dev.type == "cuda" else None,
                                 timeout=timedelta(minutes=60))
+    # control messages go over gloo on the CPU: no GPU synchronisation per training step
+    cpu_group = dist.new_group(backend="gloo") if dev.type == "cuda" else dist.group.WORLD
     return Runtime(dev, precision, bool(compile), dist.get_rank(), dist.get_world_size(),
-                   local_rank)
+                   local_rank, cpu_group)
 
 
 def rank_seed(seed: int, rank: int) -> int:
@@ -174,7 +177,8 @@ def rng_state(generators: dict[str, torch.Generator] | None = None) -> dict:
     np_state = np.random.get_state()  # noqa: NPY002 - the legacy global stream users seed
     state = {
         "torch": torch.get_rng_state(),
-        "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
+        # the training GPU's stream only (another machine may show a different GPU count)
+        "cuda": torch.cuda.get_rng_state() if torch.cuda.is_available() else None,
         "numpy": {"name": np_state[0], "keys": torch.from_numpy(np_state[1].astype(np.int64)),
                   "pos": int(np_state[2]), "has_gauss": int(np_state[3]),
                   "cached_gaussian": float(np_state[4])},
@@ -187,8 +191,8 @@ def rng_state(generators: dict[str, torch.Generator] | None = None) -> dict:
 def set_rng_state(state: dict, generators: dict[str, torch.Generator] | None = None) -> None:
     """Restore what `rng_state` captured."""
     torch.set_rng_state(state["torch"])
-    if state.get("cuda") and torch.cuda.is_available():
-        torch.cuda.set_rng_state_all(state["cuda"])
+    if isinstance(state.get("cuda"), torch.Tensor) and torch.cuda.is_available():
+        torch.cuda.set_rng_state(state["cuda"])
     np_state = state["numpy"]
     np.random.set_state((np_state["name"], np_state["keys"].numpy().astype(np.uint32),  # noqa: NPY002
                          np_state["pos"], np_state["has_gauss"], np_state["cached_gaussian"]))

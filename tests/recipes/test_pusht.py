@@ -170,6 +170,10 @@ def test_a_refused_resume_names_the_setting_and_leaves_the_run_untouched(recipe,
     with pytest.raises(ValueError, match="no training state"):
         recipe["train"].train(_cfg([f"resume={run / 'best.pt'}"]),
                               overrides=[f"resume={run / 'best.pt'}"])
+    with pytest.raises(ValueError, match="'~logger' removes a setting"):
+        recipe["train"].train(_cfg([f"resume={run}"]), overrides=[f"resume={run}", "~logger"])
+    with pytest.raises(ValueError, match="already holds a run .*resume="):  # no silent restart
+        recipe["train"].train(_cfg(["algo=srfmp", f"out_dir={run}", *TINY]))
     from rfmp_rl.training.resume import resume_checkpoint
 
     with pytest.raises(ValueError, match="a run of recipe 'pusht', not 'robosuite'"):
