@@ -12,12 +12,12 @@ backward, fused AdamW, EMA) on batches drawn from the Push-T recipe's replay buf
 
 1. one process, ``--threads`` threads (default 1): eager fp32, compiled fp32 and eager bf16, each
    its own model from the same initialisation, warmed up first (``--warmup`` steps, excluded;
-   compilation happens there and is reported on its own), then ``--steps`` timed steps
-   interleaved: one step of each variant in turn, the order rotating every round, so machine
-   noise hits every variant alike;
+   compilation happens there and is reported on its own, from an empty inductor cache unless
+   ``--warm-compile-cache``), then ``--steps`` timed steps interleaved: one step of each
+   variant in turn, the order rotating every round, so machine noise hits every variant alike;
 2. ``torchrun --standalone --nproc_per_node=N`` of this script (``--ddp-worker``), N = 1 and 2,
    one thread per process, per-rank batch = global batch / N; rank 0 writes its times to a JSON
-   file this process reads;
+   file this process reads; ``--ddp-repeats`` launches per N, alternating N = 1 and 2, pooled;
 3. the data share: ``rb.sample()`` + moving to the device over the whole step (sample + update),
    per variant (target <= 10%).
 
@@ -64,7 +64,7 @@ from rfmp_rl.training import (  # noqa: E402
 )
 
 TASKS = ("pusht_state", "pusht_image")
-TITLES = {"pusht_state": "Push-T state", "pusht_image": "Push-T image (96x96 camera)"}
+TITLES = {"pusht_state": "Push-T state", "pusht_image": "Push-T image, 96x96 camera"}
 #: Push-T's actions and low-dim observations are pixel coordinates of the 512 x 512 board.
 PUSHT_RANGE = (0.0, 512.0)
 #: the task config names the Push-T camera ``image``; the recipe's batches hold it as ``pixels``
@@ -300,6 +300,15 @@ def run_ddp(args, task: str, batch: int, nproc: int, workdir: Path) -> Timing:
                   result["sample"], result["update"], note)
 
 
+def pooled(runs: list[Timing]) -> Timing:
+    """One row from repeated launches of the same setting (their steps pooled)."""
+    first = runs[0]
+    note = first.note + (f"; {len(runs)} launches pooled" if len(runs) > 1 else "")
+    return Timing(first.label, first.batch, first.processes, first.threads, first.warmup,
+                  [t for r in runs for t in r.sample],
+                  [t for r in runs for t in r.update], note)
+
+
 def ddp_worker(args) -> int:
     """One rank: the eager fp32 step at per-rank batch = global / world size; rank 0 writes its
     times to ``--json``."""
@@ -355,7 +364,16 @@ def bf16_flags() -> str:
     return ", ".join(found) if found else "none (no avx512_bf16 / amx_bf16)"
 
 
-def section(task: str, source: str, timings: list[Timing], params: int) -> list[str]:
+def cache_note(warm_cache: bool) -> str:
+    """What the compile time includes (a first compile, or whatever the on-disk cache held)."""
+    if warm_cache:
+        return (" (--warm-compile-cache: torch's on-disk inductor cache was used, so a rerun of "
+                "the same model compiles faster than a first run)")
+    return " (a first compile: this run used an empty inductor cache)"
+
+
+def section(task: str, source: str, timings: list[Timing], params: int, warm_cache: bool
+            ) -> list[str]:
     """The markdown table and the summary lines of one task."""
     base = timings[0].samples_per_s
     lines = [f"## {TITLES[task]} (batch {timings[0].batch})", "",
@@ -377,7 +395,8 @@ def section(task: str, source: str, timings: list[Timing], params: int) -> list[
     if compiled is not None:
         lines.append(f"- torch.compile: first step {compiled.warmup[0]:.1f} s, "
                      f"{len(compiled.warmup)} warm-up step(s) {sum(compiled.warmup):.1f} s "
-                     f"(eager fp32: {sum(timings[0].warmup):.1f} s); excluded from samples/s")
+                     f"(eager fp32: {sum(timings[0].warmup):.1f} s); excluded from samples/s"
+                     f"{cache_note(warm_cache)}")
     one, two = by_label.get("DDP 1 process"), by_label.get("DDP 2 processes")
     if one is not None and two is not None:
         lines.append(f"- DDP scaling at global batch {two.batch}: 2 processes / 1 process = "
@@ -391,7 +410,7 @@ def section(task: str, source: str, timings: list[Timing], params: int) -> list[
     return lines
 
 
-def header(args, command: str, sources: list[str]) -> list[str]:
+def header(args, command: str, sources: list[str], load: float) -> list[str]:
     threads = os.environ.get("OMP_NUM_THREADS", "unset")
     unet = f"UNet down dims {args.down_dims}" if args.down_dims else "small UNet"
     gpu = ": the machine has no GPU" if not torch.cuda.is_available() else " (the GPU is not used)"
@@ -401,7 +420,8 @@ def header(args, command: str, sources: list[str]) -> list[str]:
         f"Machine: {cpu_name()}, {os.cpu_count()} cores, torch {torch.__version__}, "
         f"{torch.get_num_threads()} torch thread(s) in the single-process rows "
         f"(OMP_NUM_THREADS={threads}), 1 thread per process under torchrun. Native bf16 "
-        f"instructions: {bf16_flags()}.", "",
+        f"instructions: {bf16_flags()}. 1-minute load average before the run: {load:.2f} "
+        "(each busy core adds about 1; it decays over minutes).", "",
         f"**These are CPU figures{gpu}.** They compare settings on this CPU only and say "
         "nothing about GPU speed-ups (`recipes/benchmarks/gpu_check.py` measures "
         "those on a CUDA machine). bf16 autocast on a CPU without native bf16 support may be "
@@ -412,8 +432,10 @@ def header(args, command: str, sources: list[str]) -> list[str]:
         f"{args.steps} timed steps. The single-process settings are interleaved (one step of "
         "each in turn, order rotating). samples/s = samples per step / median update time; "
         "under DDP the global batch is kept and split over the processes (rank 0's update "
-        "includes the all-reduce). Data share = median rb.sample() + to-device time / (that + "
-        f"median update time), target <= {DATA_TARGET:.0%}. Batches: "
+        f"includes the all-reduce); each process count is launched {args.ddp_repeats} time(s), "
+        "alternating 1 and 2 processes, and the timed steps of its launches are pooled "
+        "(warm-up column: the first launch). Data share = median rb.sample() + to-device "
+        f"time / (that + median update time), target <= {DATA_TARGET:.0%}. Batches: "
         + "; ".join(sources) + ".", "",
     ]
 
@@ -444,6 +466,11 @@ def parse_args(argv: list[str] | None = None):
                         help="UNet widths instead of the small preset's (tiny smoke runs)")
     parser.add_argument("--no-compile", action="store_true", help="skip the torch.compile row")
     parser.add_argument("--no-ddp", action="store_true", help="skip the torchrun rows")
+    parser.add_argument("--ddp-repeats", type=int, default=2,
+                        help="torchrun launches per process count (alternating 1, 2, 1, 2)")
+    parser.add_argument("--warm-compile-cache", action="store_true",
+                        help="use torch's on-disk inductor cache (default: an empty one, so the "
+                             "compile time is a first compile's)")
     parser.add_argument("--data", default=None, help="Push-T zarr (default: the recipe's)")
     parser.add_argument("--synthetic", action="store_true", help="synthetic batches, no zarr")
     parser.add_argument("--ddp-timeout", type=float, default=900, help="seconds per torchrun")
@@ -451,8 +478,8 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument("--ddp-worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--json", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
-    if args.steps < 1 or args.warmup < 1:
-        parser.error("--steps and --warmup must be >= 1")
+    if args.steps < 1 or args.warmup < 1 or args.ddp_repeats < 1:
+        parser.error("--steps, --warmup and --ddp-repeats must be >= 1")
     return args
 
 
@@ -462,8 +489,11 @@ def main(argv: list[str] | None = None) -> int:
         return ddp_worker(args)
     torch.set_num_threads(args.threads)
     command = regenerate_command()
+    load = os.getloadavg()[0]  # before this run's own processes
     body, sources, failures = [], [], []
     with tempfile.TemporaryDirectory() as tmp:
+        if not args.warm_compile_cache:  # compile from scratch: the cost of a first run
+            os.environ["TORCHINDUCTOR_CACHE_DIR"] = str(Path(tmp) / "inductor_cache")
         for task in args.tasks:
             batch = args.batch if task == "pusht_state" else args.image_batch
             print(f"{task}: batch {batch}", flush=True)
@@ -474,14 +504,18 @@ def main(argv: list[str] | None = None) -> int:
             params = sum(p.numel() for p in make_policy(
                 task, data, down_dims=args.down_dims, algorithm=args.algo).parameters())
             del data
-            for nproc in () if args.no_ddp else (1, 2):
-                try:
-                    timings.append(run_ddp(args, task, batch, nproc, Path(tmp)))
-                except (RuntimeError, subprocess.TimeoutExpired) as err:
-                    failures.append(f"{task} DDP {nproc}: {err}")
-                    print(f"  FAILED: DDP {nproc}: {err}", flush=True)
-            body += section(task, sources[-1].split(": ", 1)[1], timings, params) + [""]
-    report = "\n".join(header(args, command, sources) + body)
+            ddp: dict[int, list[Timing]] = {1: [], 2: []}
+            for _ in range(0 if args.no_ddp else args.ddp_repeats):
+                for nproc in ddp:  # alternating, so machine noise hits both alike
+                    try:
+                        ddp[nproc].append(run_ddp(args, task, batch, nproc, Path(tmp)))
+                    except (RuntimeError, subprocess.TimeoutExpired) as err:
+                        failures.append(f"{task} DDP {nproc}: {err}")
+                        print(f"  FAILED: DDP {nproc}: {err}", flush=True)
+            timings += [pooled(runs) for runs in ddp.values() if runs]
+            body += section(task, sources[-1].split(": ", 1)[1], timings, params,
+                            args.warm_compile_cache) + [""]
+    report = "\n".join(header(args, command, sources, load) + body)
     if failures:
         report += "\n## Failures\n\n" + "\n".join(f"- {f}" for f in failures) + "\n"
     print(report)

@@ -464,8 +464,9 @@ class Trainer:
                 bar.update(1)
                 if self.step % cfg.log_every == 0 and main:
                     value = float(self.running)
-                    logger.log_scalar("train/loss", value, step=self.step)
-                    logger.log_scalar("train/lr", lr, step=self.step)
+                    if logger is not None:
+                        logger.log_scalar("train/loss", value, step=self.step)
+                        logger.log_scalar("train/lr", lr, step=self.step)
                     bar.set_postfix({"loss": f"{value:.4f}", f"best_{label}": f"{self.best:.4f}"})
                 elapsed = start_minutes + (time.perf_counter() - clock) / 60
                 self.minutes, signalled = self._agree(elapsed, signals.received is not None)

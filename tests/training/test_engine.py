@@ -251,6 +251,14 @@ def test_loggers_from_torchrl(tmp_path, backend, monkeypatch):
         assert list(tmp_path.rglob("offline-run-*")), sorted(map(str, tmp_path.rglob("*")))
 
 
+def test_no_logger_trains_and_writes_no_logs(tmp_path):
+    model, rb, val = _fresh()
+    trainer = Trainer(model, rb, val, runtime=CPU, run_dir=tmp_path, recipe="toy",
+                      train=TrainConfig(steps=3, val_every=2, log_every=1, val_batches=1),
+                      logger=LoggerConfig(backend="none"), progress=False)
+    assert trainer.fit().steps == 3 and not (tmp_path / "logs").exists()
+
+
 def test_unknown_logger_is_refused(tmp_path):
     model, rb, val = _fresh()
     trainer = Trainer(model, rb, val, runtime=CPU, run_dir=tmp_path, recipe="toy",
