@@ -251,7 +251,7 @@ class Trainer:
         trained 3 steps in ...
         3
         >>> sorted(p.name for p in Path("run").iterdir())
-        ['best.pt', 'history.json', 'last.pt']
+        ['best.pt', 'history.json', 'last.pt', 'runtime.json']
     """
 
     def __init__(
