@@ -22,6 +22,7 @@ from pathlib import Path
 from tensordict import TensorDict
 
 from rfmp_rl.data.episodes import DataError, Manifest
+from rfmp_rl.data.store import check_store_destination
 
 __all__ = ["read_source", "main"]
 
@@ -69,7 +70,8 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rfmp-convert", description=__doc__.split("\n")[0])
     parser.add_argument("format", choices=FORMATS)
     parser.add_argument("source", help="file, folder, bag(s) or LASA shape names (comma-separated)")
-    parser.add_argument("--out", type=Path, help="store folder to write (replaced if present)")
+    parser.add_argument("--out", type=Path, help="store folder to write: missing, empty, or a "
+                        "store written before (replaced atomically); anything else is refused")
     parser.add_argument("--keys", help="comma-separated keys to read (zarr arrays / robomimic obs)")
     parser.add_argument("--filter", dest="filter_key", help="robomimic mask/<filter> split")
     parser.add_argument("--config", help="ROS: YAML mapping topics to keys and the control rate")
@@ -78,6 +80,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None and not args.dry_run:
         parser.error("--out is required unless --dry-run")
     try:
+        if not args.dry_run:  # before the read: a refused --out costs nothing
+            check_store_destination(args.out)
         episodes, manifest = read_source(
             args.format,
             args.source,
@@ -93,7 +97,12 @@ def main(argv: list[str] | None = None) -> int:
         from rfmp_rl.data.store import DemonstrationStore
 
         store = DemonstrationStore.from_episodes(episodes, manifest, memmap=True)
-        path = store.save(args.out)
+        try:
+            path = store.save(args.out)
+        except (DataError, OSError) as err:
+            print(f"rfmp-convert: error: {err} (any previous store at {args.out} is unchanged)",
+                  file=sys.stderr)
+            return 2
         print(f"wrote {path} ({manifest.episodes} episodes, {manifest.steps} steps)")
     return 0
 

@@ -24,7 +24,7 @@ import torch
 from tensordict import TensorDict
 from tensordict.utils import NestedKey
 
-__all__ = ["DataError", "Manifest", "make_episode", "key_name", "check_finite"]
+__all__ = ["DataError", "Manifest", "make_episode", "key_name", "parse_key", "check_finite"]
 
 
 class DataError(ValueError):
@@ -64,6 +64,14 @@ class DataError(ValueError):
 def key_name(key: NestedKey) -> str:
     """``("obs", "eef_pos")`` -> ``"obs/eef_pos"``; strings unchanged."""
     return key if isinstance(key, str) else "/".join(key)
+
+
+def parse_key(key: NestedKey) -> NestedKey:
+    """The inverse of `key_name`: ``"obs/eef_pos"`` -> ``("obs", "eef_pos")`` (the form the
+    manifest prints is accepted wherever a key is taken); other keys unchanged."""
+    if isinstance(key, str) and "/" in key:
+        return tuple(part for part in key.split("/") if part)
+    return tuple(key) if isinstance(key, list) else key
 
 
 def check_finite(

@@ -28,6 +28,7 @@ rest before the episode started).
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from collections.abc import Sequence
 from pathlib import Path
@@ -46,9 +47,10 @@ from torchrl.data.replay_buffers.storages import Storage
 from torchrl.envs.transforms import Transform
 
 from rfmp_rl import keys
-from rfmp_rl.data.episodes import DataError, Manifest, key_name
+from rfmp_rl.data.episodes import DataError, Manifest, key_name, parse_key
 
-__all__ = ["DemonstrationStore", "HorizonContextSampler", "ContextChunk", "sample_indices"]
+__all__ = ["DemonstrationStore", "HorizonContextSampler", "ContextChunk", "sample_indices",
+           "check_store_destination"]
 
 _EPISODE_KEY = "episode"
 
@@ -201,10 +203,19 @@ class ContextChunk(Transform):
     ) -> None:
         super().__init__()
         self.horizon = int(horizon)
-        self.observation_keys = list(observation_keys)
-        self.camera_keys = list(camera_keys)
-        self.action_key = action_key
-        self.concat = {k: list(v) for k, v in (concat or {}).items()}
+        self.observation_keys = [parse_key(k) for k in observation_keys]
+        self.camera_keys = [parse_key(k) for k in camera_keys]
+        self.action_key = parse_key(action_key)
+        self.concat = {parse_key(k): [parse_key(i) for i in v] for k, v in (concat or {}).items()}
+
+    @staticmethod
+    def _get(tensordict: TensorDictBase, key: NestedKey) -> torch.Tensor:
+        value = tensordict.get(key, None)
+        if value is None:
+            present = ", ".join(sorted(key_name(k) for k in tensordict.keys(True, True)))
+            raise KeyError(f"ContextChunk: no entry {key_name(key)!r} in the stored steps "
+                           f"(keys: {present})")
+        return value
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if tensordict.batch_dims != 2 or tensordict.shape[1] != 2 + self.horizon:
@@ -215,15 +226,54 @@ class ContextChunk(Transform):
             )
         batch = tensordict.shape[0]
         out = TensorDict({}, batch_size=[batch])
+        get = self._get
         for key in self.observation_keys:
-            out.set(key, tensordict.get(key)[:, :2])
+            out.set(key, get(tensordict, key)[:, :2])
         for out_key, in_keys in self.concat.items():
-            parts = [tensordict.get(k)[:, :2].reshape(batch, 2, -1) for k in in_keys]
+            parts = [get(tensordict, k)[:, :2].reshape(batch, 2, -1) for k in in_keys]
             out.set(out_key, torch.cat(parts, dim=-1))
         for key in self.camera_keys:
-            out.set(key, tensordict.get(key)[:, :2].permute(0, 1, 4, 2, 3))  # (B, 2, C, H, W)
-        out.set(self.action_key, tensordict.get(self.action_key)[:, 2:])  # (B, T_p, D)
+            out.set(key, get(tensordict, key)[:, :2].permute(0, 1, 4, 2, 3))  # (B, 2, C, H, W)
+        out.set(self.action_key, get(tensordict, self.action_key)[:, 2:])  # (B, T_p, D)
         return out
+
+
+STORE_FILES = ("manifest.json", "episodes.json", "storage")
+
+
+def check_store_destination(path: str | Path) -> None:
+    """Refuse a destination `DemonstrationStore.save` must not replace: a file, or a folder that
+    holds anything but a store written by `save` (an empty folder is fine).
+
+    Raises:
+        DataError: naming the path and what is in it.
+    """
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        raise DataError("--out names a file; give a folder for the store (missing, empty, or "
+                        "a store written before)", file=str(path))
+    if not path.is_dir():
+        return
+    entries = sorted(p.name for p in path.iterdir())
+    if not entries or all((path / name).exists() for name in STORE_FILES):
+        return
+    shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+    raise DataError(f"refusing to replace a folder that is not a demonstration store (it holds "
+                    f"{shown}); give a new or empty folder", file=str(path))
+
+
+def _sync_tree(folder: Path) -> None:
+    """fsync every file below ``folder`` and the folders themselves."""
+    for item in sorted(folder.rglob("*"), key=lambda p: len(p.parts), reverse=True):
+        if item.is_file():
+            with open(item, "rb+") as f:
+                os.fsync(f.fileno())
+    for directory in [*(p for p in folder.rglob("*") if p.is_dir()), folder]:
+        fd = os.open(directory, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
 
 
 class DemonstrationStore:
@@ -316,15 +366,38 @@ class DemonstrationStore:
 
     def save(self, path: str | Path) -> Path:
         """Write the store to a folder: ``storage/`` (memory-mapped tensors), ``manifest.json``,
-        ``episodes.json`` (lengths). Existing contents are replaced."""
+        ``episodes.json`` (lengths).
+
+        ``path`` must be missing, an empty folder, or a store written here before (its
+        ``manifest.json``, ``episodes.json`` and ``storage/`` present); anything else is refused
+        (`check_store_destination`), so a mistaken path never deletes a user's files. The
+        replacement is atomic: the new store is written and synced beside the old one, then
+        swapped in by rename; if anything fails, the previous store is intact and no partial
+        folder remains."""
         path = Path(path)
-        if path.exists():
-            shutil.rmtree(path)
-        path.mkdir(parents=True)
-        data = self.storage.get(slice(0, len(self.storage)))
-        data.memmap_(path / "storage")
-        (path / "manifest.json").write_text(self.manifest.to_json())
-        (path / "episodes.json").write_text(json.dumps({"lengths": self.episode_lengths.tolist()}))
+        check_store_destination(path)
+        tmp = path.parent / f".{path.name}.writing-{os.getpid()}"
+        old = path.parent / f".{path.name}.replaced-{os.getpid()}"
+        path.parent.mkdir(parents=True, exist_ok=True)
+        try:
+            tmp.mkdir()
+            data = self.storage.get(slice(0, len(self.storage)))
+            data.memmap_(tmp / "storage")
+            (tmp / "manifest.json").write_text(self.manifest.to_json())
+            (tmp / "episodes.json").write_text(
+                json.dumps({"lengths": self.episode_lengths.tolist()}))
+            _sync_tree(tmp)
+            if path.exists():
+                os.replace(path, old)  # the previous store, kept until the new one is in place
+            try:
+                os.replace(tmp, path)
+            except BaseException:
+                if old.exists() and not path.exists():
+                    os.replace(old, path)
+                raise
+        finally:
+            shutil.rmtree(tmp, ignore_errors=True)
+        shutil.rmtree(old, ignore_errors=True)
         return path
 
     @classmethod
@@ -357,6 +430,7 @@ class DemonstrationStore:
     def stats(self, key: NestedKey, chunk: int = 65536) -> tuple[torch.Tensor, torch.Tensor]:
         """Per-dimension min and max of ``key`` over every stored step (flattened per step);
         feeds `rfmp_rl.modules.Normalizer.set_stats`."""
+        key = parse_key(key)  # "obs/gripper" as the manifest prints it, or ("obs", "gripper")
         data = self.storage.get(slice(0, len(self.storage)))
         if key not in data.keys(include_nested=True):
             raise DataError(
