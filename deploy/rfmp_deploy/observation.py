@@ -181,7 +181,10 @@ class ObservationProcessor:
                 problems.append(f"camera '{name}': resizing {frame.shape} failed ({e})")
                 return None
             frame = frame.reshape(h, w, c)  # OpenCV drops a trailing channel axis of 1
-        return np.ascontiguousarray(frame.transpose(2, 0, 1))
+        # always a copy: the robot's driver may overwrite its buffer before the next step, and
+        # a view (a frame already at size, a grayscale frame, an HWC view of a CHW buffer)
+        # would turn the window's earlier frames into the latest one
+        return np.array(frame.transpose(2, 0, 1), dtype=np.uint8, order="C", copy=True)
 
 
 def stack_window(
