@@ -357,6 +357,10 @@ class Controller:
         return action
 
 
+#: The rate at which a `FaultController` holds its safe action under `run` without a rate.
+FAULT_RATE_HZ = 10.0
+
+
 class FaultController:
     """Stands in for a `Controller` whose model could not be loaded: it holds the safe action.
 
@@ -379,11 +383,15 @@ class FaultController:
         safe_action: np.ndarray,
         clock: Callable[[], float] = time.monotonic,
         max_events: int = 10_000,
+        control_rate_hz: float | None = None,
     ) -> None:
         self.error = error
         self.safe_action = np.asarray(safe_action, dtype=np.float32).reshape(-1).copy()
-        if not np.isfinite(self.safe_action).all():
-            raise ValueError(f"safe_action must be finite, got {self.safe_action}")
+        if self.safe_action.size == 0 or not np.isfinite(self.safe_action).all():
+            raise ValueError(f"safe_action must be a non-empty finite (D,) action, got "
+                             f"{self.safe_action}")
+        # the rate run() holds the safe action at when none is given (no model to read it from)
+        self.control_rate_hz = float(control_rate_hz or FAULT_RATE_HZ)
         self.clock, self.max_events = clock, int(max_events)
         self.events: list[Event] = []
         self.event_counts: Counter[str] = Counter()
@@ -420,12 +428,17 @@ def open_controller(
     Args:
         model: path of the exported ``.onnx`` file.
         safe_action: the action to hold; required for the fallback (without it a model that
-            cannot be loaded raises, since no safe action can be read from its metadata).
-        **kwargs: forwarded to `Controller`.
+            cannot be loaded raises, since no safe action can be read from its metadata). With a
+            model that loads it is checked against the model (length, finite, on the manifold,
+            inside the limits).
+        **kwargs: forwarded to `Controller`; ``control_rate_hz`` also sets the rate at which
+            `run` holds the fallback's safe action when no rate is given (default 10 Hz).
 
     Raises:
         FileNotFoundError, ValueError: the model cannot be loaded and no ``safe_action`` was
             given.
+        ValueError: the model loads but ``safe_action`` does not fit it (the message names
+            ``safe_action``): the caller's error, never a reason to run without the policy.
 
     Example:
         >>> ctl = open_controller("missing.onnx", safe_action=np.zeros(3))
@@ -433,10 +446,14 @@ def open_controller(
         ('FaultController', array([0., 0., 0.], dtype=float32))
     """
     try:
-        return Controller(model, safe_action=safe_action, **kwargs)
+        policy = Policy(model)
     except (FileNotFoundError, ValueError) as err:
         if safe_action is None:
             raise
         clock = kwargs.get("clock", time.monotonic)
         return FaultController(err, safe_action, clock=clock,
-                               max_events=kwargs.get("max_events", 10_000))
+                               max_events=kwargs.get("max_events", 10_000),
+                               control_rate_hz=kwargs.get("control_rate_hz"))
+    # the model loaded: a bad safe action (or setting) is the caller's error, raised as such,
+    # never a reason to run without the policy
+    return Controller(policy, safe_action=safe_action, **kwargs)

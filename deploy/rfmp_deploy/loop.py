@@ -112,7 +112,10 @@ def run(
     Returns:
         the loop's `RunStats`.
     """
-    rate = float(rate_hz if rate_hz is not None else controller.meta.control_rate_hz)
+    if rate_hz is None:  # the model's rate; a FaultController (no model) carries its own
+        meta = getattr(controller, "meta", None)
+        rate_hz = meta.control_rate_hz if meta is not None else controller.control_rate_hz
+    rate = float(rate_hz)
     if not rate > 0:
         raise ValueError(f"rate_hz must be positive, got {rate_hz}")
     period = 1.0 / rate

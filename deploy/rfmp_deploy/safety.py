@@ -87,14 +87,23 @@ def resolve_safe_action(space: ActionSpace, safe_action: np.ndarray | None) -> n
         return action
     action = np.asarray(safe_action, dtype=np.float64)
     if action.shape != (space.dim,):
-        raise ValueError(f"safe_action has shape {action.shape}, expected ({space.dim},)")
+        raise ValueError(f"safe_action has shape {action.shape}, expected ({space.dim},) for "
+                         f"the action space {space}")
     if not np.all(np.isfinite(action)):
-        raise ValueError("safe_action has non-finite coordinates")
-    projection = space.project(action)
-    if projection.clipped:
-        raise ValueError(f"safe_action is outside the action limits: "
-                         f"{projection.describe(space.low, space.high)}")
-    return projection.action
+        raise ValueError(f"safe_action has non-finite coordinate(s) "
+                         f"{np.flatnonzero(~np.isfinite(action)).tolist()}")
+    mask = space.euclidean
+    outside = np.flatnonzero(mask & ((action < space.low) | (action > space.high))).tolist()
+    if outside:
+        ranges = ", ".join(f"{i} ({action[i]:.4g} not in [{space.low[i]:.4g}, "
+                           f"{space.high[i]:.4g}])" for i in outside)
+        raise ValueError(f"safe_action is outside the action limits: coordinate(s) {ranges}")
+    for seg in space.spheres:  # the robot holds it as given: it must lie on the manifold
+        norm = float(np.linalg.norm(action[seg.slice]))
+        if abs(norm - 1.0) > space.norm_tolerance:
+            raise ValueError(f"safe_action is off the manifold: its {seg} component at "
+                             f"{seg.start}:{seg.stop} has norm {norm:.4g}, not 1")
+    return space.project(action).action
 
 
 def guard_action(space: ActionSpace, action: np.ndarray) -> tuple[np.ndarray | None, str | None]:

@@ -47,3 +47,37 @@ def test_unloadable_model_holds_the_safe_action_and_the_loop_keeps_running(make_
         np.testing.assert_array_equal(action, SAFE)
     assert controller.event_counts["model_error"] == 5
     assert path.name in controller.events[0].message
+
+
+def test_the_fallback_runs_under_run_without_a_rate(tmp_path):
+    controller = open_controller(tmp_path / "missing.onnx", safe_action=SAFE)
+    ticks = iter(np.arange(0.0, 10.0, 0.01))
+    robot = FakeRobot()
+    stats = run(controller, robot, max_steps=3, clock=lambda: float(next(ticks)),
+                sleep=lambda s: None)  # no rate: the fallback's own (10 Hz)
+    assert stats.steps == 3 and controller.control_rate_hz == 10.0
+    assert open_controller(tmp_path / "missing.onnx", safe_action=SAFE,
+                           control_rate_hz=50.0).control_rate_hz == 50.0
+
+
+SPHERE = ToySpec(manifold={"type": "sphere", "n": 2})
+
+
+@pytest.mark.parametrize("safe,message", [
+    (np.zeros(3), "safe_action is off the manifold: its S2 component at 0:3 has norm 0"),
+    (np.array([0.0, 0.0, 2.0]), "off the manifold.*norm 2"),
+    (np.array([0.0, 0.0, 0.0, 1.0]), r"safe_action has shape \(4,\), expected \(3,\)"),
+    (np.array([np.nan, 0.0, 1.0]), r"safe_action has non-finite coordinate\(s\) \[0\]"),
+])
+def test_a_bad_safe_action_for_a_good_model_is_the_callers_error(make_model, safe, message):
+    path = make_model(SPHERE)
+    with pytest.raises(ValueError, match=message):
+        open_controller(path, safe_action=safe)  # never a FaultController blaming the model
+
+
+def test_a_safe_action_outside_the_limits_is_refused(make_model):
+    path = make_model(ToySpec(manifold={"type": "euclidean", "dim": 2}, low=[-1.0, -1.0],
+                              high=[1.0, 1.0]))
+    with pytest.raises(ValueError, match="safe_action is outside the action limits"):
+        open_controller(path, safe_action=np.array([0.0, 3.0]))
+    assert open_controller(path, safe_action=np.array([0.0, 0.5])).meta is not None

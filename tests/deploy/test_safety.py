@@ -166,9 +166,12 @@ def test_safe_action(make_policy):
     unbounded = ToySpec(low=[None] * 8, high=[None] * 8)
     with pytest.raises(ValueError, match="pass Controller\\(..., safe_action=...\\)"):
         Controller(make_policy(unbounded))
-    home = np.array([0.3, 0.0, 0.2, 0, 0, 0, 2.0, 0.0])  # quaternion gets normalised
+    home = np.array([0.3, 0.0, 0.2, 0, 0, 0, 1.0, 0.0])
     controller = Controller(make_policy(unbounded), safe_action=home)
-    np.testing.assert_allclose(controller.step({}), [0.3, 0, 0.2, 0, 0, 0, 1, 0])
+    np.testing.assert_allclose(controller.step({}), home)
+    # the robot holds the safe action as given: a quaternion off S^3 is refused, not fixed
+    with pytest.raises(ValueError, match="safe_action is off the manifold: its S3 component"):
+        Controller(make_policy(unbounded), safe_action=home * [1, 1, 1, 1, 1, 1, 2, 1])
     with pytest.raises(ValueError, match="outside the action limits"):
         Controller(make_policy(SPEC), safe_action=np.full(8, 2.0))
     with pytest.raises(ValueError, match=r"shape \(3,\)"):
