@@ -182,6 +182,13 @@ class Controller:
         self._current = -1
 
     # ----- public API ----------------------------------------------------------------------
+    def set_control_rate(self, rate_hz: float) -> None:
+        """The rate the loop runs at (`run` sets it from its ``rate_hz``): the period that
+        overrun and underrun events and their messages refer to."""
+        if not float(rate_hz) > 0:
+            raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+        self.period = 1.0 / float(rate_hz)
+
     def reset(self, seed: int | None = None) -> None:
         """Start a new episode: forget the history, the queued actions and the last action.
 

@@ -118,6 +118,8 @@ def run(
     rate = float(rate_hz)
     if not rate > 0:
         raise ValueError(f"rate_hz must be positive, got {rate_hz}")
+    if hasattr(controller, "set_control_rate"):  # its events speak of this loop's period
+        controller.set_control_rate(rate)
     period = 1.0 / rate
     stats = RunStats()
     total = 0.0

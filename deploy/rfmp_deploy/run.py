@@ -27,8 +27,13 @@ from rfmp_deploy.policy import Policy
 __all__ = ["check", "main"]
 
 
-def check(policy: Policy, runs: int = 20, seed: int = 0) -> dict[str, float]:
+def check(policy: Policy, runs: int = 20, seed: int = 0, rate_hz: float | None = None
+          ) -> dict[str, float]:
     """Time ``runs`` batch-1 inferences on random valid inputs (after one warm-up call).
+
+    Args:
+        rate_hz: the control rate the robot will run at (default: the model's); the period
+            the latency is judged against.
 
     Returns:
         ``{"median_ms", "p95_ms", "max_ms", "period_ms"}``.
@@ -51,8 +56,16 @@ def check(policy: Policy, runs: int = 20, seed: int = 0) -> dict[str, float]:
         "median_ms": float(np.median(ms)),
         "p95_ms": float(np.percentile(ms, 95)),
         "max_ms": float(ms.max()),
-        "period_ms": policy.meta.period * 1e3,
+        "period_ms": (1.0 / rate_hz if rate_hz else policy.meta.period) * 1e3,
     }
+
+
+def _advice(t: dict[str, float]) -> str:
+    if t["p95_ms"] > t["period_ms"]:
+        return "SLOWER than the control period: use --async (inference in the background)"
+    if t["p95_ms"] > t["period_ms"] / 2:
+        return "OK, but over half the period: --async is recommended"
+    return "OK"
 
 
 def _load_robot(spec: str) -> RobotInterface:
@@ -76,8 +89,11 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser.add_argument("--robot", help="module:factory returning a RobotInterface")
     parser.add_argument("--rate", type=float, help="control rate in Hz (default: the model's)")
     parser.add_argument("--max-steps", type=int, help="stop after this many steps")
-    parser.add_argument("--async", dest="asynchronous", action="store_true",
-                        help="run inference in a background thread")
+    parser.add_argument("--async", dest="asynchronous", action="store_true", default=None,
+                        help="run inference in a background thread (the default when p95 "
+                             "inference exceeds half the control period)")
+    parser.add_argument("--sync", dest="asynchronous", action="store_false",
+                        help="run inference in the control loop, whatever its latency")
     parser.add_argument("--deterministic", action="store_true",
                         help="feed zero noise (the policy's deterministic mode)")
     parser.add_argument("--seed", type=int, default=0, help="noise generator seed")
@@ -95,18 +111,26 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     print(policy.meta.summary())
     print(f"providers:    {', '.join(policy.providers)}")
+    if args.rate is not None and not args.rate > 0:
+        parser.error(f"--rate must be positive, got {args.rate}")
     if args.check:
-        t = check(policy, runs=args.runs, seed=args.seed)
-        verdict = "OK" if t["p95_ms"] <= t["period_ms"] else "SLOWER than the control period"
+        t = check(policy, runs=args.runs, seed=args.seed, rate_hz=args.rate)
         print(f"latency:      median {t['median_ms']:.2f} ms, p95 {t['p95_ms']:.2f} ms, "
               f"max {t['max_ms']:.2f} ms over {args.runs} runs at batch 1 "
-              f"(period {t['period_ms']:.1f} ms: {verdict})")
+              f"(period {t['period_ms']:.1f} ms: {_advice(t)})")
         return 0
     if not args.robot:
         parser.error("pass --check, or --robot module:factory to drive a robot")
     robot = _load_robot(args.robot)
+    asynchronous = args.asynchronous
+    if asynchronous is None:  # neither --async nor --sync: decide from the measured latency
+        t = check(policy, runs=10, seed=args.seed, rate_hz=args.rate)
+        asynchronous = t["p95_ms"] > t["period_ms"] / 2
+        print(f"inference p95 {t['p95_ms']:.2f} ms, control period {t['period_ms']:.1f} ms: "
+              + ("over half the period, so inference runs asynchronously (--sync to keep it in "
+                 "the loop)" if asynchronous else "synchronous inference (--async to change)"))
     with Controller(policy, seed=args.seed, deterministic=args.deterministic or None,
-                    asynchronous=args.asynchronous) as controller:
+                    asynchronous=asynchronous, control_rate_hz=args.rate) as controller:
         try:
             stats = run(controller, robot, rate_hz=args.rate, max_steps=args.max_steps,
                         stop=lambda: bool(getattr(robot, "done", False)))

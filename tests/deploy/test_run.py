@@ -77,3 +77,87 @@ def test_robot_mode_needs_a_factory(make_model):
         main(["--model", str(path)])
     with pytest.raises(SystemExit, match="module:factory"):
         main(["--model", str(path), "--robot", "no_colon"])
+
+
+# ----- the rate given to the loop is the controller's period -----------------------------------
+def test_check_judges_latency_against_the_given_rate(make_model, make_policy, capsys,
+                                                      monkeypatch):
+    assert check(make_policy(ToySpec()), runs=2, rate_hz=50.0)["period_ms"] == pytest.approx(20.0)
+    path = make_model(ToySpec())
+    assert main(["--model", str(path), "--check", "--runs", "3", "--rate", "50"]) == 0
+    assert "(period 20.0 ms: OK)" in capsys.readouterr().out
+    import rfmp_deploy.run as cli
+
+    slow = {"median_ms": 12.0, "p95_ms": 12.0, "max_ms": 13.0}
+    monkeypatch.setattr(cli, "check", lambda *a, rate_hz=None, **k: {
+        **slow, "period_ms": 1e3 / (rate_hz or 10.0)})
+    assert main(["--model", str(path), "--check", "--rate", "50"]) == 0
+    assert "over half the period: --async is recommended" in capsys.readouterr().out
+    assert main(["--model", str(path), "--check", "--rate", "100"]) == 0
+    assert "SLOWER than the control period: use --async" in capsys.readouterr().out
+    with pytest.raises(SystemExit):
+        main(["--model", str(path), "--check", "--rate", "0"])
+
+
+def test_the_cli_goes_asynchronous_when_inference_exceeds_half_the_period(
+        make_model, tmp_path, monkeypatch, capsys):
+    (tmp_path / "arm2.py").write_text(textwrap.dedent("""
+        import numpy as np
+
+        class Arm:
+            def __init__(self):
+                self.sent = []
+
+            @property
+            def done(self):
+                return len(self.sent) >= 2
+
+            def read_observation(self):
+                return {"pos": np.zeros(3), "quat": np.array([0, 0, 0, 1.0])}
+
+            def send_action(self, action):
+                self.sent.append(action)
+
+        def make():
+            return Arm()
+    """))
+    monkeypatch.syspath_prepend(str(tmp_path))
+    import rfmp_deploy.run as cli
+
+    monkeypatch.setattr(cli, "check", lambda *a, rate_hz=None, **k: {
+        "median_ms": 15.0, "p95_ms": 15.0, "max_ms": 15.0, "period_ms": 1e3 / rate_hz})
+    path = make_model(ToySpec())
+    assert main(["--model", str(path), "--robot", "arm2:make", "--rate", "50"]) == 0
+    assert "inference runs asynchronously" in capsys.readouterr().out
+    assert main(["--model", str(path), "--robot", "arm2:make", "--rate", "20"]) == 0
+    assert "synchronous inference" in capsys.readouterr().out
+
+
+def test_run_gives_the_controller_its_rate(make_policy):
+    from rfmp_deploy import Controller
+    from rfmp_deploy.loop import run  # (this file imports the rfmp_deploy.run module)
+    from toy_policy import make_observation
+
+    now = [0.0]
+    spec = ToySpec()
+
+    class Slow:
+        def __init__(self, policy):
+            self.policy, self.meta = policy, policy.meta
+
+        def __call__(self, *inputs):
+            now[0] += 0.03  # 30 ms: under the model's 100 ms period, over 20 ms at 50 Hz
+            return self.policy(*inputs)
+
+    class Robot:
+        def read_observation(self):
+            return make_observation(spec)
+
+        def send_action(self, action):
+            pass
+
+    controller = Controller(Slow(make_policy(spec)), clock=lambda: now[0])
+    run(controller, Robot(), rate_hz=50.0, max_steps=3, clock=lambda: now[0],
+        sleep=lambda s: now.__setitem__(0, now[0] + s))
+    overruns = [e for e in controller.events if e.kind == "overrun"]
+    assert overruns and "control period 20.0 ms" in overruns[0].message
