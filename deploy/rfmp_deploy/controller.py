@@ -180,6 +180,8 @@ class Controller:
         self._worker: _InferenceThread | None = None
         self._pending: tuple[Future, int] | None = None  # (future, step index of the request)
         self._current = -1
+        self._last_frame: tuple[int, float] | None = None  # (step, time) of the last frame kept
+        self._dropped: str | None = None  # why the queue was last emptied (underrun messages)
 
     # ----- public API ----------------------------------------------------------------------
     def set_control_rate(self, rate_hz: float) -> None:
@@ -198,6 +200,7 @@ class Controller:
         self._drop_plan()
         self._history.clear()
         self._last_action = None
+        self._last_frame, self._dropped = None, None
         if seed is not None:
             self._rng = np.random.default_rng(seed)
 
@@ -218,9 +221,12 @@ class Controller:
         except Exception as e:  # ObservationError, or anything else preprocessing ran into
             reason = str(e) if isinstance(e, ObservationError) else f"preprocessing failed: {e!r}"
             self._drop_plan()
+            self._dropped = f"an observation was rejected at step {self._current}"
             self._record("rejected", f"observation rejected, holding: {reason}")
             return self.hold_action
+        self._resync()
         self._history.append(frame)
+        self._last_frame = (self._current, self.clock())
         if self.asynchronous:
             return self._step_async()
         return self._step_sync()
@@ -277,6 +283,24 @@ class Controller:
         self.event_counts[kind] += 1
         level = logging.INFO if kind == "clamped" else logging.WARNING
         logger.log(level, "step %d: %s: %s", event.step, kind, message)
+
+    def _resync(self) -> None:
+        """After an outage (steps whose observations were rejected, so the robot held), the
+        window's earlier frame is not the previous step's: refill the window from fresh
+        observations (the next plan pairs the new frame with itself, as after `reset`) and drop
+        the plan. (A late step after an overrun is still the next step: no resync.)"""
+        if self._last_frame is None:
+            return
+        step, when = self._last_frame
+        steps, seconds = self._current - step, self.clock() - when
+        if steps <= 1:
+            return
+        self._history.clear()
+        self._drop_plan()
+        self._dropped = f"resynchronising after a {steps}-step outage"
+        self._record("resync", f"observation window refilled after an outage of {steps} steps "
+                               f"({seconds * 1e3:.1f} ms, control period "
+                               f"{self.period * 1e3:.1f} ms)")
 
     def _drop_plan(self) -> None:
         self._queue.clear()
@@ -340,6 +364,7 @@ class Controller:
         chunk, elapsed = future.result()
         chunk = chunk[0]  # (T_p, D)
         self.inference_times.append(elapsed)
+        self._dropped = None
         late = self._current - requested
         self._queue = deque(chunk[late:])
         self.plan_count += 1
@@ -352,7 +377,9 @@ class Controller:
         if self._queue:
             action = self._execute(self._queue.popleft())
         else:
-            if note is None:
+            if note is None and self._dropped is not None:
+                note = f"the plan was dropped: {self._dropped}"
+            elif note is None:
                 note = ("no chunk yet since reset" if self._last_action is None
                         else "inference is slower than the queue drains")
             self._record("underrun", f"action queue empty, holding ({note})")

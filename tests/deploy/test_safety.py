@@ -89,8 +89,10 @@ def test_rejection_drops_the_plan(recording):
     assert controller.queue_size == 0
     controller.step(make_observation(SPEC, 1))  # the next good observation re-plans
     assert len(recording.calls) == 2
-    # ... with the last two *valid* observations as its window.
-    np.testing.assert_allclose(recording.calls[1][0][0, :, 0], [0.0, 0.1], atol=1e-7)
+    # ... from a window refilled with fresh observations: the frame before the outage is not
+    # the previous step's, so it is not paired with the new one as if consecutive
+    np.testing.assert_allclose(recording.calls[1][0][0, :, 0], [0.1, 0.1], atol=1e-7)
+    assert controller.event_counts["resync"] == 1
 
 
 def test_extra_keys_and_types_that_are_fine(recording):
@@ -225,3 +227,30 @@ def test_unexpected_preprocessing_failure_is_a_rejection(recording):
     np.testing.assert_array_equal(controller.step(make_observation(SPEC)), SAFE)
     event = controller.events[-1]
     assert event.kind == "rejected" and "RuntimeError('driver returned garbage')" in event.message
+
+
+def test_after_an_outage_the_window_is_refilled_and_a_resync_reported(recording):
+    controller = Controller(recording)
+    for k in range(3):
+        controller.step(make_observation(SPEC, k))
+    for _ in range(50):  # a 50-step outage: every observation rejected, the robot holds
+        controller.step({})
+    controller.step(make_observation(SPEC, 9))
+    (resync,) = [e for e in controller.events if e.kind == "resync"]
+    assert "outage of 51 steps" in resync.message and resync.step == 53
+    np.testing.assert_allclose(recording.calls[-1][0][0, :, 0], [0.9, 0.9], atol=1e-6)
+    controller.step(make_observation(SPEC, 10))  # consecutive again: no further resync
+    assert controller.event_counts["resync"] == 1
+
+
+def test_async_underrun_after_an_outage_names_its_cause(make_policy):
+    controller = Controller(Recording(make_policy(SPEC)), asynchronous=True)
+    controller.step(make_observation(SPEC, 0))
+    controller.wait_inference(5.0)
+    controller.step(make_observation(SPEC, 1))
+    controller.step({})
+    controller.step(make_observation(SPEC, 3))
+    underruns = [e.message for e in controller.events if e.kind == "underrun"]
+    assert "the plan was dropped: resynchronising after a 2-step outage" in underruns[-1]
+    assert "slower than the queue drains" not in underruns[-1]
+    controller.close()
