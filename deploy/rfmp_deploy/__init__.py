@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from rfmp_deploy.adapters import BagReplay, GymnasiumRobot, ReplayReport
 from rfmp_deploy.controller import Controller, FaultController, open_controller
-from rfmp_deploy.loop import RobotInterface, RunStats, run
+from rfmp_deploy.loop import RobotInterface, RunStats, SendActionError, run
 from rfmp_deploy.metadata import FORMAT, InputSpec, ObservationField, PolicyMeta, parse_metadata
 from rfmp_deploy.observation import Frame, ObservationError, ObservationProcessor
 from rfmp_deploy.policy import Policy
@@ -38,6 +38,7 @@ __all__ = [
     "BagReplay",
     "Controller",
     "FaultController",
+    "SendActionError",
     "open_controller",
     "Event",
     "Frame",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 import time
 from collections.abc import Callable
@@ -12,7 +13,9 @@ import numpy as np
 
 from rfmp_deploy.controller import Controller
 
-__all__ = ["RobotInterface", "RunStats", "run"]
+logger = logging.getLogger("rfmp_deploy")
+
+__all__ = ["RobotInterface", "RunStats", "SendActionError", "run"]
 
 
 @runtime_checkable
@@ -25,13 +28,15 @@ class RobotInterface(Protocol):
     entry per camera name (``H x W x 3`` uint8 RGB, any size: the controller resizes). Print
     ``python -m rfmp_deploy.run --model policy.onnx --check`` for the list. If a sensor is
     unavailable, leave its key out (or pass NaN) rather than raising: the controller then holds
-    and records a ``rejected`` event, and the loop keeps its rate. Exceptions propagate and end
-    the loop.
+    and records a ``rejected`` event, and the loop keeps its rate. Exceptions from
+    ``read_observation`` propagate and end the loop.
 
     ``send_action`` receives one ``(D,)`` float32 action in the layout of the model's
     ``action_manifold`` (e.g. position xyz, quaternion xyzw, gripper) and must return quickly
     (queue it to the driver; do not wait for the motion to finish). It is already clipped to
-    the training limits; apply your robot's own limits too (workspace, velocity, force).
+    the training limits; apply your robot's own limits too (workspace, velocity, force). If it
+    raises, `run` counts and logs the failure and goes on (the robot holds its last command);
+    ``max_send_errors`` failures in a row stop the loop with `SendActionError`.
 
     Example:
         >>> class MyArm:
@@ -75,11 +80,20 @@ class RunStats:
     mean_step_time: float = 0.0
     max_step_time: float = 0.0
     duration: float = 0.0
+    send_errors: int = 0
+    last_send_error: str | None = None
 
     def summary(self) -> str:
-        return (f"{self.steps} steps in {self.duration:.2f} s; step time mean "
+        text = (f"{self.steps} steps in {self.duration:.2f} s; step time mean "
                 f"{self.mean_step_time * 1e3:.2f} ms, max {self.max_step_time * 1e3:.2f} ms; "
                 f"{self.overruns} overrun(s), {self.missed_ticks} missed tick(s)")
+        if self.send_errors:
+            text += f"; {self.send_errors} failed send_action call(s): {self.last_send_error}"
+        return text
+
+
+class SendActionError(RuntimeError):
+    """``send_action`` failed ``max_send_errors`` times in a row: the loop stopped."""
 
 
 def run(
@@ -90,6 +104,7 @@ def run(
     stop: Callable[[], bool] = lambda: False,
     clock: Callable[[], float] = time.monotonic,
     sleep: Callable[[float], None] = time.sleep,
+    max_send_errors: int = 5,
 ) -> RunStats:
     """Drive ``robot`` with ``controller`` at a fixed rate until ``stop()`` or ``max_steps``.
 
@@ -108,9 +123,15 @@ def run(
             or ``lambda: robot.done``).
         clock: monotonic clock in seconds.
         sleep: sleeps for the given seconds.
+        max_send_errors: an exception from ``robot.send_action`` is counted and logged and the
+            loop goes on (the robot keeps its last command: it holds); this many failures in a
+            row stop the loop with `SendActionError`.
 
     Returns:
         the loop's `RunStats`.
+
+    Raises:
+        SendActionError: ``send_action`` failed ``max_send_errors`` times in a row.
     """
     if rate_hz is None:  # the model's rate; a FaultController (no model) carries its own
         meta = getattr(controller, "meta", None)
@@ -123,11 +144,25 @@ def run(
     period = 1.0 / rate
     stats = RunStats()
     total = 0.0
+    failures = 0  # send_action failures in a row
     start = clock()
     tick = 0  # index of the grid tick the current step starts on
     while (max_steps is None or stats.steps < max_steps) and not stop():
         begin = clock()
-        robot.send_action(controller.step(robot.read_observation()))
+        action = controller.step(robot.read_observation())
+        try:
+            robot.send_action(action)
+            failures = 0
+        except Exception as e:  # the driver's problem: hold (send nothing new), then stop
+            failures += 1
+            stats.send_errors += 1
+            stats.last_send_error = repr(e)
+            logger.warning("step %d: send_action failed (%d in a row): %r", stats.steps,
+                           failures, e)
+            if failures >= max_send_errors:
+                stats.duration = clock() - start
+                raise SendActionError(f"send_action failed {failures} times in a row, stopping "
+                                      f"the loop: {e!r}") from e
         end = clock()
         work = end - begin
         stats.steps += 1

@@ -49,6 +49,10 @@ REQUIRED_KEYS = (
 )
 
 _DTYPES = {"float32": np.dtype(np.float32), "uint8": np.dtype(np.uint8)}
+#: Plausibility bounds: metadata outside them is refused at load (a typo, not a robot).
+RATE_RANGE_HZ = (0.1, 2000.0)
+MAX_HORIZON = 1024
+
 _KIND_DTYPE = {"lowdim": "float32", "image": "uint8", "noise": "float32"}
 
 
@@ -336,6 +340,14 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
     action_steps = r.integer("action_steps", 1)
     if action_steps > horizon:
         raise r.error("action_steps", f"T_a={action_steps} exceeds the horizon T_p={horizon}")
+    if horizon > MAX_HORIZON:
+        raise r.error("horizon", f"T_p={horizon} is implausible (at most {MAX_HORIZON} actions "
+                                 f"per chunk)")
+    control_rate_hz = r.number("control_rate_hz", positive=True)
+    if not RATE_RANGE_HZ[0] <= control_rate_hz <= RATE_RANGE_HZ[1]:
+        raise r.error("control_rate_hz", f"{control_rate_hz:g} Hz is implausible for a robot "
+                                         f"controller (expected {RATE_RANGE_HZ[0]:g}-"
+                                         f"{RATE_RANGE_HZ[1]:g} Hz)")
 
     raw_inputs = r.json("inputs")
     if not isinstance(raw_inputs, list) or not raw_inputs:
@@ -390,6 +402,11 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
         elif "action_high" in str(e):
             key = "action_high"
         raise r.error(key, str(e)) from None
+    for seg in space.spheres:  # unit vectors span [-1, 1] in every coordinate
+        if (space.low[seg.slice] > -1).any() or (space.high[seg.slice] < 1).any():
+            raise r.error("action_low", f"limits on the {seg} component at {seg.start}:{seg.stop}"
+                          f" ([{space.low[seg.slice].tolist()}, {space.high[seg.slice].tolist()}])"
+                          f" are not enforced on a sphere: give -1 and 1 (or null) there")
 
     noise = r.json("noise")
     if not isinstance(noise, dict):
@@ -419,7 +436,7 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
         obs_horizon=obs_horizon,
         horizon=horizon,
         action_steps=action_steps,
-        control_rate_hz=r.number("control_rate_hz", positive=True),
+        control_rate_hz=control_rate_hz,
         inputs=inputs,
         observation_keys=tuple(fields),
         action_space=space,

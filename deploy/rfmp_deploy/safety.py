@@ -36,6 +36,7 @@ EVENT_KINDS = (
     "inference_error",
     "overrun",
     "underrun",
+    "resync",
     "model_error",
 )
 

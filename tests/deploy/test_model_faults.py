@@ -81,3 +81,50 @@ def test_a_safe_action_outside_the_limits_is_refused(make_model):
     with pytest.raises(ValueError, match="safe_action is outside the action limits"):
         open_controller(path, safe_action=np.array([0.0, 3.0]))
     assert open_controller(path, safe_action=np.array([0.0, 0.5])).meta is not None
+
+
+# ----- implausible metadata and a failing send_action -------------------------------------------
+@pytest.mark.parametrize("overrides,key,message", [
+    ({"control_rate_hz": "1e-9"}, "control_rate_hz", "implausible"),
+    ({"control_rate_hz": "50000"}, "control_rate_hz", "implausible"),
+    ({"horizon": "100000", "action_steps": "2"}, "horizon", "implausible"),
+])
+def test_implausible_metadata_is_refused_at_load(make_model, overrides, key, message):
+    from rfmp_deploy import Policy
+
+    with pytest.raises(ValueError, match=f"{key}.*{message}"):
+        Policy(make_model(ToySpec(), overrides=overrides))
+
+
+def test_limits_on_a_sphere_component_are_refused_at_load(make_model):
+    from rfmp_deploy import Policy
+
+    low = [-1.0] * 3 + [-0.1] * 4 + [0.0]
+    high = [1.0] * 3 + [0.1] * 4 + [0.08]
+    with pytest.raises(ValueError, match=r"action_low.*S3 component at 3:7.*not enforced"):
+        Policy(make_model(ToySpec(low=low, high=high)))
+
+
+class FlakyRobot(FakeRobot):
+    def __init__(self, fail_at) -> None:
+        super().__init__()
+        self.fail_at, self.calls = set(fail_at), 0
+
+    def send_action(self, action: np.ndarray) -> None:
+        self.calls += 1
+        if self.calls in self.fail_at:
+            raise ConnectionError(f"driver dropped command {self.calls}")
+        super().send_action(action)
+
+
+def test_send_action_failures_are_counted_and_the_loop_holds_then_stops(tmp_path):
+    from rfmp_deploy import SendActionError
+
+    controller = open_controller(tmp_path / "missing.onnx", safe_action=SAFE)
+    robot = FlakyRobot(fail_at={2, 4})  # isolated failures: the loop goes on
+    stats = run(controller, robot, rate_hz=1000.0, max_steps=6)
+    assert stats.steps == 6 and stats.send_errors == 2 and len(robot.sent) == 4
+    assert "driver dropped command 4" in stats.summary()
+    robot = FlakyRobot(fail_at={3, 4, 5})  # three in a row: stop
+    with pytest.raises(SendActionError, match="failed 3 times in a row.*command 5"):
+        run(controller, robot, rate_hz=1000.0, max_steps=10, max_send_errors=3)
