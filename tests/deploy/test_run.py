@@ -35,8 +35,10 @@ def test_bad_model_is_reported_not_raised(make_model, capsys):
     assert str(path) in err and "rfmp_rl.format" in err
 
 
-def test_drives_a_robot_from_a_factory(make_model, tmp_path, monkeypatch, capsys):
-    (tmp_path / "fake_arm.py").write_text(textwrap.dedent("""
+def _fake_arm_module(folder, name: str, steps: int) -> None:
+    """``folder/<name>.py``: an arm that is ``done`` after ``steps`` actions; ``make()`` returns
+    the module's ``ARM``."""
+    (folder / f"{name}.py").write_text(textwrap.dedent(f"""
         import numpy as np
 
         class Arm:
@@ -45,10 +47,10 @@ def test_drives_a_robot_from_a_factory(make_model, tmp_path, monkeypatch, capsys
 
             @property
             def done(self):
-                return len(self.sent) >= 4
+                return len(self.sent) >= {steps}
 
             def read_observation(self):
-                return {"pos": np.zeros(3), "quat": np.array([0, 0, 0, 1.0])}
+                return {{"pos": np.zeros(3), "quat": np.array([0, 0, 0, 1.0])}}
 
             def send_action(self, action):
                 self.sent.append(action)
@@ -58,6 +60,10 @@ def test_drives_a_robot_from_a_factory(make_model, tmp_path, monkeypatch, capsys
         def make():
             return ARM
     """))
+
+
+def test_drives_a_robot_from_a_factory(make_model, tmp_path, monkeypatch, capsys):
+    _fake_arm_module(tmp_path, "fake_arm", steps=4)
     monkeypatch.syspath_prepend(str(tmp_path))
     path = make_model(ToySpec())
     code = main(["--model", str(path), "--robot", "fake_arm:make", "--rate", "200", "--async",
@@ -101,26 +107,7 @@ def test_check_judges_latency_against_the_given_rate(make_model, make_policy, ca
 
 def test_the_cli_goes_asynchronous_when_inference_exceeds_half_the_period(
         make_model, tmp_path, monkeypatch, capsys):
-    (tmp_path / "arm2.py").write_text(textwrap.dedent("""
-        import numpy as np
-
-        class Arm:
-            def __init__(self):
-                self.sent = []
-
-            @property
-            def done(self):
-                return len(self.sent) >= 2
-
-            def read_observation(self):
-                return {"pos": np.zeros(3), "quat": np.array([0, 0, 0, 1.0])}
-
-            def send_action(self, action):
-                self.sent.append(action)
-
-        def make():
-            return Arm()
-    """))
+    _fake_arm_module(tmp_path, "arm2", steps=2)
     monkeypatch.syspath_prepend(str(tmp_path))
     import rfmp_deploy.run as cli
 
