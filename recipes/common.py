@@ -80,15 +80,9 @@ def load_for_eval(cfg: DictConfig, check_config) -> tuple:
 def check_runtime_config(cfg: DictConfig) -> None:
     """The device / precision / compile / logger / eval.workers settings, checked before any
     work (each error names its setting)."""
-    from rfmp_rl.training import LOGGER_BACKENDS, PRECISIONS, resolve_device
+    from rfmp_rl.training import LOGGER_BACKENDS, check_settings
 
-    device = resolve_device(cfg.get("device", "auto"))
-    precision = cfg.get("precision", "fp32")
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision={precision!r}: use one of {sorted(PRECISIONS)}")
-    if precision == "fp16" and device.type != "cuda":
-        raise ValueError(f"precision=fp16 needs a CUDA device (device={cfg.get('device')} is "
-                         f"{device.type}); use precision=bf16 or fp32")
+    check_settings(cfg.get("device", "auto"), cfg.get("precision", "fp32"))
     if not isinstance(cfg.get("compile", False), bool):
         raise ValueError(f"compile must be true or false, got {cfg.get('compile')!r}")
     logger = cfg.get("logger", "csv")

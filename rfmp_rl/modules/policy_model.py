@@ -42,6 +42,9 @@ __all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_m
 
 ALGORITHMS = ("rfmp", "srfmp", "ddim")
 
+#: Precision name -> autocast dtype of the networks (None: fp32, no autocast).
+PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+
 
 @dataclass
 class ModelConfig:
@@ -190,10 +193,9 @@ class PolicyModel(nn.Module):
         """Run the networks (observation encoder, UNet) under autocast: ``fp32`` (off), ``bf16``
         or ``fp16``. Their outputs come back in the caller's dtype, so the normalisers, the
         manifold maps and the solver's projections always compute in float32."""
-        dtypes = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
-        if precision not in dtypes:
-            raise ValueError(f"precision must be one of {sorted(dtypes)}, got {precision!r}")
-        self.amp_dtype = dtypes[precision]
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        self.amp_dtype = PRECISIONS[precision]
         return self
 
     def _run_network(self, module: nn.Module, like: torch.Tensor, *args):

@@ -16,6 +16,7 @@ from rfmp_rl.training.loggers import LOGGER_BACKENDS, make_logger
 from rfmp_rl.training.runtime import (
     PRECISIONS,
     Runtime,
+    check_settings,
     rank_seed,
     resolve_device,
     rng_state,
@@ -36,6 +37,7 @@ __all__ = [
     "make_logger",
     "LOGGER_BACKENDS",
     "Runtime",
+    "check_settings",
     "setup_runtime",
     "resolve_device",
     "rank_seed",

@@ -22,17 +22,18 @@ import torch
 import torch.distributed as dist
 from tensordict import TensorDictBase
 
+from rfmp_rl.modules.policy_model import PRECISIONS
+
 __all__ = [
     "PRECISIONS",
     "Runtime",
+    "check_settings",
     "setup_runtime",
     "resolve_device",
     "rank_seed",
     "rng_state",
     "set_rng_state",
 ]
-
-PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
 
 
 def resolve_device(device: str) -> torch.device:
@@ -88,16 +89,6 @@ class Runtime:
         """Rank 0: the process that logs, validates, evaluates and writes checkpoints."""
         return self.rank == 0
 
-    @property
-    def amp_dtype(self) -> torch.dtype | None:
-        return PRECISIONS[self.precision]
-
-    def autocast(self):
-        """The autocast context of the networks (a no-op in fp32)."""
-        dtype = self.amp_dtype
-        return torch.autocast(self.device.type, dtype=dtype or torch.float32,
-                              enabled=dtype is not None)
-
     def to_device(self, batch: TensorDictBase) -> TensorDictBase:
         """Move a sampled batch to the device: pinned memory and a non-blocking copy on CUDA."""
         if self.device.type == "cpu":
@@ -116,6 +107,18 @@ class Runtime:
             dist.destroy_process_group()
 
 
+def check_settings(device: str, precision: str) -> torch.device:
+    """The device a ``device`` / ``precision`` pair runs on; a `ValueError` naming the setting
+    for an unknown device or precision, CUDA without CUDA, or fp16 off CUDA."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision={precision!r}: use one of {sorted(PRECISIONS)}")
+    dev = resolve_device(device)
+    if precision == "fp16" and dev.type != "cuda":
+        raise ValueError(f"precision=fp16 needs a CUDA device (fp16 autocast with a gradient "
+                         f"scaler; device={device} is {dev.type}); use precision=bf16 or fp32")
+    return dev
+
+
 def setup_runtime(device: str = "auto", precision: str = "fp32", compile: bool = False,
                   *, distributed: bool | None = None) -> Runtime:
     """Check the settings and, under ``torchrun``, join the process group.
@@ -131,12 +134,7 @@ def setup_runtime(device: str = "auto", precision: str = "fp32", compile: bool =
         ValueError: naming the setting, for an unknown device or precision, CUDA without CUDA,
             fp16 on CPU, or ``cuda:N`` under torchrun.
     """
-    if precision not in PRECISIONS:
-        raise ValueError(f"precision={precision!r}: use one of {sorted(PRECISIONS)}")
-    dev = resolve_device(device)
-    if precision == "fp16" and dev.type != "cuda":
-        raise ValueError("precision=fp16 needs a CUDA device (fp16 autocast with a gradient "
-                         f"scaler); on {dev.type} use precision=bf16 or fp32")
+    dev = check_settings(device, precision)
     world = int(os.environ.get("WORLD_SIZE", "1"))
     if distributed is None:
         distributed = world > 1
