@@ -2,6 +2,7 @@
 
     python export/to_onnx.py --checkpoint runs/x/ckpt.pt --nfe 1 [--horizon 1.0]
         [--method euler] [--schedule srfmp] [--out policy.onnx] [--opset 18] [--raw-weights]
+        [--precision fp32|fp16|int8|int8-dynamic] [--calibration STORE] [--max-diff X]
 
 Writes one ONNX graph (normalise -> encode -> NFE solver steps with manifold maps ->
 unnormalise), checks it with ``onnx.checker``, runs it in onnxruntime against the PyTorch
@@ -9,6 +10,14 @@ policy on the same inputs and prior noise, prints the max difference and the lat
 non-zero if the difference exceeds 1e-4 (in normalised action units: Euclidean coordinates
 divided by their half-range) or a sphere component is off the manifold by > 1e-5.
 The EMA weights are exported unless ``--raw-weights`` is given.
+
+``--precision`` exports the networks (observation encoder, UNet) in float16 or int8 while the
+normalisation, manifold maps and solver steps stay float32 (`rfmp_rl.onnx_export`); the
+difference to the float32 PyTorch policy is printed, stored in the model's metadata and must
+stay below ``--max-diff`` (default per precision: `PARITY_LIMITS`). ``int8`` calibrates its
+activation ranges on observation windows from ``--calibration`` (a store written by
+`rfmp-convert`, holding the policy's observation fields and cameras); without it, on windows drawn
+uniformly in the observation normaliser's range, which is cruder.
 """
 
 from __future__ import annotations
@@ -19,8 +28,35 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+import torch  # noqa: E402
+
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.checkpoint import load_checkpoint  # noqa: E402
-from rfmp_rl.onnx_export import export_onnx  # noqa: E402
+from rfmp_rl.data import DemonstrationStore  # noqa: E402
+from rfmp_rl.onnx_export import (  # noqa: E402
+    EXPORT_PRECISIONS,
+    calibration_inputs,
+    export_onnx,
+)
+
+
+def store_calibration(model, path: str, windows: int) -> list:
+    """Calibration inputs from a saved store: the policy's observation fields (concatenated in
+    the metadata order) and cameras, as training windows."""
+    cfg = model.cfg
+    store = DemonstrationStore.load(path)
+    fields = [name for name, _ in cfg.obs_keys]
+    concat = None if fields in ([], [keys.OBSERVATION]) else {keys.OBSERVATION: fields}
+    rb = store.replay_buffer(
+        cfg.horizon,
+        observation_keys=[keys.OBSERVATION] if cfg.obs_dim > 0 else [],
+        camera_keys=list(cfg.cameras),
+        concat=concat,
+        obs_horizon=cfg.obs_horizon,
+        batch_size=windows,
+        generator=torch.Generator().manual_seed(0),
+    )
+    return calibration_inputs(model, rb.sample())
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,15 +76,30 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", default=None, help="output .onnx (default: next to checkpoint)")
     parser.add_argument("--opset", type=int, default=18)
     parser.add_argument("--raw-weights", action="store_true", help="export non-EMA weights")
+    parser.add_argument("--precision", default="fp32", choices=EXPORT_PRECISIONS,
+                        help="the networks' precision in the graph (default fp32)")
+    parser.add_argument("--calibration", default=None,
+                        help="int8: a DemonstrationStore folder to calibrate on")
+    parser.add_argument("--calibration-windows", type=int, default=256,
+                        help="int8: observation windows drawn from --calibration")
+    parser.add_argument("--max-diff", type=float, default=None,
+                        help="parity limit in normalised action units (default per precision)")
     args = parser.parse_args(argv)
+    if args.calibration and args.precision != "int8":
+        parser.error("--calibration applies to --precision int8 only")
 
     model, payload = load_checkpoint(args.checkpoint, use_ema=not args.raw_weights)
+    suffix = "" if args.precision == "fp32" else f"_{args.precision}"
     out = (
         Path(args.out)
         if args.out
-        else Path(args.checkpoint).with_name(f"policy_{payload['algorithm']}_nfe{args.nfe}.onnx")
+        else Path(args.checkpoint).with_name(
+            f"policy_{payload['algorithm']}_nfe{args.nfe}{suffix}.onnx")
     )
     try:
+        calibration = None
+        if args.calibration:
+            calibration = store_calibration(model, args.calibration, args.calibration_windows)
         report = export_onnx(
             model,
             out,
@@ -58,8 +109,11 @@ def main(argv: list[str] | None = None) -> int:
             args.schedule,
             args.refine_dt,
             opset=args.opset,
+            atol=args.max_diff,
+            precision=args.precision,
+            calibration=calibration,
         )
-    except (RuntimeError, ValueError) as err:
+    except (RuntimeError, ValueError, OSError) as err:
         print(f"export failed: {err}", file=sys.stderr)
         return 1
     print(report.summary())

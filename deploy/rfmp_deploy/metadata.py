@@ -48,6 +48,11 @@ REQUIRED_KEYS = (
     "noise",
 )
 
+#: Optional keys: the network's precision in the graph (default fp32) and how far the exported
+#: graph was measured from the float32 PyTorch policy (normalised action units).
+PRECISIONS = ("fp32", "fp16", "int8", "int8-dynamic")
+OPTIONAL_KEYS = ("precision", "parity_max_abs_diff")
+
 _DTYPES = {"float32": np.dtype(np.float32), "uint8": np.dtype(np.uint8)}
 #: Plausibility bounds: metadata outside them is refused at load (a typo, not a robot).
 RATE_RANGE_HZ = (0.1, 2000.0)
@@ -125,6 +130,10 @@ class PolicyMeta:
         action_space: the action manifold with its limits.
         noise_dim: size of the ``prior_noise`` input.
         noise_default: ``"standard_normal"`` (sample) or ``"zeros"`` (deterministic mode).
+        precision: the networks' precision in the graph (``fp32``, ``fp16``, ``int8``,
+            ``int8-dynamic``); inputs and output are float32 in every case.
+        parity_max_abs_diff: max |graph - float32 PyTorch| measured at export (normalised action
+            units), or None when the exporter did not record it.
         extra: metadata keys outside the contract, verbatim.
 
     Example:
@@ -151,6 +160,8 @@ class PolicyMeta:
     action_space: ActionSpace
     noise_dim: int
     noise_default: str
+    precision: str = "fp32"
+    parity_max_abs_diff: float | None = None
     extra: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -205,6 +216,10 @@ class PolicyMeta:
         lines.append(f"  high:       {np.array2string(high, precision=4, separator=', ')}")
         lines.append(f"noise:        standard normal, dim {self.noise_dim}, "
                      f"default {self.noise_default}")
+        parity = ("" if self.parity_max_abs_diff is None else
+                  f" (max |graph - float32 policy| {self.parity_max_abs_diff:.3g} in normalised "
+                  "action units at export)")
+        lines.append(f"precision:    {self.precision}{parity}")
         return "\n".join(lines)
 
 
@@ -425,6 +440,13 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
     if default not in ("standard_normal", "zeros"):
         raise r.error("noise", f"'default' must be 'standard_normal' or 'zeros', got {default!r}")
 
+    precision = props.get("precision", "fp32")
+    if precision not in PRECISIONS:
+        raise r.error("precision", f"must be one of {', '.join(PRECISIONS)}, got {precision!r}")
+    parity = r.number("parity_max_abs_diff") if "parity_max_abs_diff" in props else None
+    if parity is not None and parity < 0:
+        raise r.error("parity_max_abs_diff", f"must be >= 0, got {parity!r}")
+
     return PolicyMeta(
         path=path,
         version=r.text("rfmp_rl.version"),
@@ -442,7 +464,9 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
         action_space=space,
         noise_dim=noise_dim,
         noise_default=default,
-        extra={k: v for k, v in props.items() if k not in REQUIRED_KEYS},
+        precision=precision,
+        parity_max_abs_diff=parity,
+        extra={k: v for k, v in props.items() if k not in REQUIRED_KEYS + OPTIONAL_KEYS},
     )
 
 

@@ -14,9 +14,15 @@ same thread count for torch and onnxruntime:
     (d) deploy   the torch-free `rfmp_deploy.Controller` on the file of (a), its
                  `inference_times` (run with T_a = 1 so that every step plans)
 
-Issue 5 targets, at 2 threads: (a)/(b) <= 1.15 (the graph around the network costs little) and
-(c)/(a) >= 2. Ratios are of medians. Everything is repeated at 1 thread as a control: on a loaded
-2-core machine a 2-thread eager call can stall on a busy core (see the notes in the output).
+Targets, at 2 threads: (a)/(b) <= 1.15 (the graph around the network costs little) and
+(c)/(a) >= 2. Ratios are of medians. Everything is repeated at 1 thread as a control: on a
+loaded 2-core machine a 2-thread eager call can stall on a busy core (see the notes in the output).
+
+Reduced-precision exports of (a) (``--precisions``, default fp16 and int8: `export_onnx(...,
+precision=...)`, the networks in float16 or int8, everything around them float32) take the same
+turns; their table gives the latency ratio to the float32 graph (a) (fp32 median / variant median,
+so > 1 is faster), the file size and the largest difference to float32 PyTorch. With random
+weights, int8 calibrates on observations drawn uniformly in the normaliser's range.
 The paths take turns in blocks (a few discarded calls, then timed calls) so that load from other
 processes on a shared machine falls on all four alike. Weights are random and the normalisers
 fitted on random data: latency does not depend on their values.
@@ -26,6 +32,7 @@ Results are printed; ``--out`` also writes them, under the command that produced
 from __future__ import annotations
 
 import argparse
+import functools
 import os
 import platform
 import shlex
@@ -122,26 +129,37 @@ def timed(call, runs: int, discard: int) -> list[float]:
     return times
 
 
-def export_both(preset: str, workdir: Path) -> tuple[FlowModel, Path, Path, float]:
-    """Export the policy graph (a) and the bare network (b); returns them with (a)'s parity."""
+def export_all(
+    preset: str, workdir: Path, precisions: list[str]
+) -> tuple[FlowModel, Path, Path, float, dict[str, tuple[Path, float]]]:
+    """Export the policy graph (a), the bare network (b) and (a) at each reduced precision;
+    returns them with (a)'s parity and ``{precision: (path, parity)}``."""
     model = make_policy(preset)
     policy_path = workdir / f"pusht_state_srfmp_{preset}_nfe1.onnx"
     network_path = workdir / f"pusht_state_srfmp_{preset}_network.onnx"
     start = time.perf_counter()
     report = export_onnx(model, policy_path, nfe=1)
     export_network(model, network_path)
+    variants = {}
+    for precision in precisions:
+        path = workdir / f"pusht_state_srfmp_{preset}_nfe1_{precision}.onnx"
+        variants[precision] = (path, export_onnx(model, path, nfe=1,
+                                                 precision=precision).max_abs_diff)
     print(
-        f"[{preset}] exported both graphs in {time.perf_counter() - start:.0f} s; "
-        f"parity max |ort - torch| = {report.max_abs_diff:.2g}",
+        f"[{preset}] exported {2 + len(precisions)} graphs in "
+        f"{time.perf_counter() - start:.0f} s; parity max |ort - torch| = "
+        f"{report.max_abs_diff:.2g}",
         flush=True,
     )
-    return model, policy_path, network_path, report.max_abs_diff
+    return model, policy_path, network_path, report.max_abs_diff, variants
 
 
 def measure(
-    model: FlowModel, policy_path: Path, network_path: Path, threads: int, args: argparse.Namespace
+    model: FlowModel, policy_path: Path, network_path: Path, threads: int, args: argparse.Namespace,
+    variants: dict[str, tuple[Path, float]],
 ) -> dict[str, list[float]]:
-    """Seconds per call of the four paths, all at ``threads`` threads, taking turns in blocks."""
+    """Seconds per call of the four paths and the precision variants of (a) (as
+    ``policy_<precision>``), all at ``threads`` threads, taking turns in blocks."""
     torch.set_num_threads(threads)
     rng = np.random.default_rng(0)
     obs = rng.standard_normal((1, 2, model.cfg.obs_dim), dtype=np.float32)  # (1, T_o, D_obs)
@@ -169,12 +187,15 @@ def measure(
         "eager": eager,
         "deploy": lambda: controller.step(step_obs),
     }
-    times: dict[str, list[float]] = {name: [] for name in PATHS}
+    for precision, (path, _) in variants.items():
+        calls[f"policy_{precision}"] = functools.partial(
+            session(path, threads).run, ["action"], policy_feed)
+    times: dict[str, list[float]] = {name: [] for name in calls}
     per_block = -(-args.runs // args.blocks)
     for call in calls.values():  # warm-up: first calls allocate
         timed(call, 0, args.warmup)
     for _ in range(args.blocks):
-        for name in PATHS:
+        for name in calls:
             controller.inference_times.clear()
             step_times = timed(calls[name], per_block, args.discard)
             if name == "deploy":  # the controller's own clock around the policy call
@@ -231,6 +252,29 @@ def tables(results: list[dict]) -> list[str]:
             f"| {ca:.2f} ({'met' if ca >= 2 else 'missed'}) | {med['deploy'] / med['policy']:.2f} "
             f"| {r['params'] / 1e6:.1f}M | {r['parity']:.1g} |"
         )
+    if any(r["variants"] for r in results):
+        lines += [
+            "",
+            "Reduced precision: the graph (a) exported with the networks in float16 or int8 "
+            "(median / p95 in ms; ratio = (a) fp32 median / variant median, > 1 is faster).",
+            "",
+            "| preset | threads | precision | median / p95 | latency ratio to fp32 | file (MB) "
+            "| max abs diff vs torch fp32 (normalised) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+    for r in results:
+        fp32 = float(np.median(r["times"]["policy"]))
+        rows = [("fp32", "policy", r["policy_path"], r["parity"])]
+        rows += [(p, f"policy_{p}", path, parity) for p, (path, parity) in r["variants"].items()]
+        if len(rows) == 1:
+            continue
+        for precision, name, path, parity in rows:
+            ms = np.asarray(r["times"][name]) * 1e3
+            lines.append(
+                f"| {r['preset']} | {r['threads']} | {precision} | {np.median(ms):.2f} / "
+                f"{np.percentile(ms, 95):.2f} | {fp32 / float(np.median(r['times'][name])):.2f} "
+                f"| {path.stat().st_size / 1e6:.1f} | {parity:.2g} |"
+            )
     return lines
 
 
@@ -256,6 +300,8 @@ def main() -> None:
     parser.add_argument(
         "--threads", type=int, nargs="+", default=[2, 1], help="torch and onnxruntime threads"
     )
+    parser.add_argument("--precisions", nargs="*", default=["fp16", "int8"],
+                        help="reduced-precision exports of (a) timed beside it")
     parser.add_argument("--out", default=None, help="also write the tables to this markdown file")
     args = parser.parse_args()
     torch.set_num_threads(args.threads[0])
@@ -263,10 +309,11 @@ def main() -> None:
     results = []
     with tempfile.TemporaryDirectory(prefix="rfmp_latency_") as tmp:
         for preset in args.presets:
-            model, policy_path, network_path, parity = export_both(preset, Path(tmp))
+            model, policy_path, network_path, parity, variants = export_all(
+                preset, Path(tmp), args.precisions)
             params = sum(p.numel() for p in model.network.parameters())
             for threads in args.threads:
-                times = measure(model, policy_path, network_path, threads, args)
+                times = measure(model, policy_path, network_path, threads, args, variants)
                 results.append(
                     {
                         "preset": preset,
@@ -274,10 +321,13 @@ def main() -> None:
                         "params": params,
                         "parity": parity,
                         "times": times,
+                        "policy_path": policy_path,
+                        "variants": variants,
                     }
                 )
                 print(f"[{preset}] measured at {threads} thread(s)", flush=True)
-    runs = len(results[0]["times"]["policy"])
+            runs = len(results[0]["times"]["policy"])
+            lines = tables(results)  # file sizes are read while the files exist
     lines = [
         f'Push-T state (`task_config("pusht_state", "srfmp", preset)`), SRFMP, NFE 1, '
         f"batch 1, random weights: **median / p95 in ms** over {runs} timed calls per path "
@@ -287,7 +337,7 @@ def main() -> None:
         f"Machine: {machine_info()}. Load average (1, 5, 15 min) at start {load_before}, "
         f"at end {load_average()}.",
         "",
-        *tables(results),
+        *lines,
         "",
         NOTES,
     ]

@@ -26,7 +26,6 @@ from collections import Counter
 from pathlib import Path
 
 import hydra
-import torch
 from omegaconf import DictConfig, OmegaConf
 from utils import (  # noqa: I001
     ROOT,
@@ -37,6 +36,7 @@ from utils import (  # noqa: I001
 )
 
 from rfmp_rl.envs.robosuite import ROBOSUITE_MAX_STEPS
+from rfmp_rl.eval.controller import run_controller
 from rfmp_rl.onnx_export import export_onnx
 
 
@@ -57,30 +57,20 @@ def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> 
                             deterministic=True)
     fields = [f.key for f in controller.meta.observation_keys]
     cameras = list(controller.meta.cameras)
-    max_steps = int(task.eval.max_steps or ROBOSUITE_MAX_STEPS[task.task])
-    success, latencies, events = [], [], []
-    for seed in seeds:
-        env, _ = make_env(task, [seed])
-        try:
-            td = env.reset()
-            controller.reset()
-            seen = len(controller.events)
-            for _ in range(max_steps):
-                # the env's per-step entries (not its windows): the controller keeps the history
-                observation = {k: td[k][0].numpy() for k in fields}
-                observation.update({c: td[c][0].permute(1, 2, 0).numpy() for c in cameras})
-                start = time.perf_counter()
-                action = controller.step(observation)
-                latencies.append(time.perf_counter() - start)
-                td["action"] = torch.as_tensor(action, dtype=torch.float32)[None]
-                td = env.step(td)["next"]
-                if bool(td["done"].any()):
-                    break
-            success.append(int(td["success"][0, 0]))
-            events += [(seed, e) for e in controller.events[seen:] if e.kind != "clamped"]
-        finally:
-            env.close()
-    return {"per_seed": success, "latencies": latencies, "events": events}
+
+    def observe(td) -> dict:
+        # the env's per-step entries (not its windows): the controller keeps the history
+        observation = {k: td[k][0].numpy() for k in fields}
+        observation.update({c: td[c][0].permute(1, 2, 0).numpy() for c in cameras})
+        return observation
+
+    rollouts = run_controller(
+        controller, lambda seed: make_env(task, [seed])[0], seeds,
+        int(task.eval.max_steps or ROBOSUITE_MAX_STEPS[task.task]), observe,
+        outcome=lambda td: int(td["success"][0, 0]),
+    )
+    return {"per_seed": [int(v) for v in rollouts.outcomes], "latencies": rollouts.step_seconds,
+            "events": [(seed, e) for seed, e in rollouts.events if e.kind != "clamped"]}
 
 
 def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, differ: list[int],

@@ -204,8 +204,8 @@ class ResNet18Encoder(nn.Module):
         lead = images.shape[:-3]
         x = images.reshape(-1, *images.shape[-3:])  # (N, C, H, W)
         x = self.crop(x)  # (N, C, h, w)
-        if x.dtype == torch.uint8:
-            x = x.to(torch.float32) / 255.0
+        if x.dtype == torch.uint8:  # to the trunk's dtype (float16 in a half-precision export)
+            x = x.to(next(self.trunk.parameters()).dtype) / 255.0
         x = self.trunk(x)  # (N, 512, h / 32, w / 32)
         x = self.head(self.pool(x))  # (N, out_dim)
         return x.reshape(*lead, self.out_dim)

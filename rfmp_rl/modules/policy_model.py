@@ -187,6 +187,7 @@ class PolicyModel(nn.Module):
             time_scale=1.0 if cfg.algorithm == "ddim" else 100.0,
         )
         self.amp_dtype: torch.dtype | None = None  # set_precision; not part of the state
+        self.network_dtype: torch.dtype | None = None  # store_networks_in; export only
 
     # ----- precision ---------------------------------------------------------------------------
     def set_precision(self, precision: str) -> PolicyModel:
@@ -198,12 +199,28 @@ class PolicyModel(nn.Module):
         self.amp_dtype = PRECISIONS[precision]
         return self
 
+    def store_networks_in(self, dtype: torch.dtype) -> PolicyModel:
+        """Keep the networks' weights in ``dtype`` (``torch.float16`` for a half-precision ONNX
+        export): their floating inputs are cast to it and their outputs back, so the normalisers,
+        the manifold maps and the solver steps stay float32. For inference; train with
+        `set_precision` instead."""
+        self.obs_encoder.to(dtype)
+        self.network.to(dtype)
+        self.network_dtype = dtype
+        return self
+
     def _run_network(self, module: nn.Module, like: torch.Tensor, *args):
-        """``module(*args)`` under the model's autocast; outputs cast to ``like``'s dtype."""
-        if self.amp_dtype is None:
+        """``module(*args)`` under the model's autocast, or in the dtype the networks are stored
+        in (`store_networks_in`); outputs cast to ``like``'s dtype."""
+        if self.network_dtype is not None:
+            dtype = self.network_dtype
+            out = module(*(a.to(dtype) if torch.is_tensor(a) and a.is_floating_point() else a
+                           for a in args))
+        elif self.amp_dtype is None:
             return module(*args)
-        with torch.autocast(like.device.type, dtype=self.amp_dtype):
-            out = module(*args)
+        else:
+            with torch.autocast(like.device.type, dtype=self.amp_dtype):
+                out = module(*args)
         if isinstance(out, tuple):
             return tuple(o.to(like.dtype) for o in out)
         return out.to(like.dtype)
