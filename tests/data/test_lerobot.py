@@ -230,3 +230,47 @@ def test_cli_prints_the_error_without_a_traceback(dataset, tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.startswith("rfmp-convert: error: ") and str(_data_file(version, root)) in err
     assert "Traceback" not in err and not (tmp_path / "store").exists()
+
+
+def test_a_lasa_policy_trains_from_a_lerobot_copy_of_its_data(tmp_path):
+    """LASA demonstrations on S^2 -> LeRobot v3.0 folder -> rfmp-convert -> store -> the
+    library's Trainer: a tiny SRFMP policy trains a few steps and its loss goes down."""
+    from rfmp_rl.data import read_lasa
+    from rfmp_rl.modules import ModelConfig, build_model
+    from rfmp_rl.training import LoggerConfig, OptimConfig, TrainConfig, Trainer, setup_runtime
+    from rfmp_rl.training.engine import validation_loss
+
+    lasa, _ = read_lasa("LShape", downsample=25)  # 7 demonstrations x 40 steps
+    source = [{"observation.state": ep["observation"].numpy(),
+               "action": ep["action"].numpy(),
+               "timestamp": ep["timestamp"].numpy().astype(np.float32)} for ep in lasa[:4]]
+    write_lerobot(tmp_path / "lasa", source, version="v3.0", fps=10)
+    assert main(["lerobot", str(tmp_path / "lasa"), "--out", str(tmp_path / "store")]) == 0
+    store = DemonstrationStore.load(tmp_path / "store")
+    assert store.episode_lengths.tolist() == [40] * 4
+    for e in range(4):
+        assert torch.equal(store.episode(e)["obs", "state"], lasa[e]["observation"])
+        assert torch.equal(store.episode(e)["action"], lasa[e]["action"])
+
+    horizon = 4
+    rb = store.replay_buffer(horizon, concat={"observation": ["obs/state"]}, batch_size=32,
+                             generator=torch.Generator().manual_seed(0))
+    torch.manual_seed(0)
+    model = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=horizon, action_steps=2,
+                                    down_dims=[16, 32], time_embed_dim=32, tau_hidden_dim=32))
+    model.action_normalizer.set_stats(*store.stats("action"))
+    model.obs_normalizer.set_stats(*store.stats("obs/state"))
+    steps = 40
+    trainer = Trainer(model, rb, rb, runtime=setup_runtime("cpu"), run_dir=tmp_path / "run",
+                      recipe="lerobot_lasa", optim=OptimConfig(lr=3e-3, warmup_steps=1,
+                                                               ema_decay=0.5),
+                      train=TrainConfig(steps=steps, batch_size=32, val_every=steps,
+                                        val_batches=4, checkpoint_every=steps),
+                      logger=LoggerConfig("none"), progress=False)
+    before = validation_loss(trainer.val_loss_fn, rb, 4, seed=0)
+    result = trainer.fit()
+    after = result.history[-1]["val"]
+    assert result.steps == steps and np.isfinite(after)
+    print(f"validation loss {before:.3f} -> {after:.3f} in {steps} steps")
+    assert after < 0.8 * before, (before, after)
+    assert (tmp_path / "run" / "best.pt").is_file()
