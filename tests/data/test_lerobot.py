@@ -112,6 +112,19 @@ def test_episode_subset_and_renames(dataset):
         read_lerobot(root, episodes=[7])
 
 
+def test_cli_episodes_and_keys(dataset, capsys):
+    _, root, _ = dataset
+    assert main(["lerobot", str(root), "--dry-run", "--episodes", "2,0",
+                 "--keys", "observation.state=obs/agent_pos,observation.image"]) == 0
+    printed = capsys.readouterr().out
+    assert "2 episodes, 43 steps, 10 Hz" in printed
+    assert "obs/agent_pos" in printed and "obs/image " in printed and "obs/images" not in printed
+    assert main(["lerobot", str(root), "--dry-run", "--episodes", "one"]) == 2
+    assert "--episodes takes comma-separated integers" in capsys.readouterr().err
+    assert main(["lerobot", str(root), "--dry-run", "--keys", "observation.nope"]) == 2
+    assert "no feature 'observation.nope'" in capsys.readouterr().err
+
+
 def _data_file(version, root, episode=1):
     if version == "v3.0":
         return root / "data" / "chunk-000" / "file-000.parquet"
