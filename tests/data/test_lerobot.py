@@ -287,3 +287,15 @@ def test_a_lasa_policy_trains_from_a_lerobot_copy_of_its_data(tmp_path):
     print(f"validation loss {before:.3f} -> {after:.3f} in {steps} steps")
     assert after < 0.8 * before, (before, after)
     assert (tmp_path / "run" / "best.pt").is_file()
+
+
+def test_timestamps_not_starting_at_zero_are_moved_to_zero(tmp_path):
+    source = make_episodes([6, 5], FPS)
+    for ep in source:  # a recording whose clock did not restart at each episode
+        ep["timestamp"] = (ep["timestamp"] + np.float32(2.5)).astype(np.float32)
+    write_lerobot(tmp_path / "ds", source, version="v3.0", fps=FPS)
+    episodes, _ = read_lerobot(tmp_path / "ds")
+    for ep, src in zip(episodes, source, strict=True):
+        recorded = src["timestamp"].astype(np.float64)
+        assert ep["timestamp"][0] == 0.0
+        assert np.array_equal(ep["timestamp"].numpy(), recorded - recorded[0])

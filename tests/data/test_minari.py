@@ -129,3 +129,17 @@ def test_observation_count_must_exceed_actions_by_one(minari_root):
         read_minari(DATASET_ID)
     assert err.value.file == str(path) and err.value.key == "observations"
     assert err.value.episode == "episode_1"
+
+
+def test_torchrl_minari_replay_still_reads_zeros(minari_root, tmp_path):
+    """Why `read_minari` reads the HDF5 file itself: TorchRL 0.14.1's MinariExperienceReplay
+    (local load) copies the data with ``memmap_like``, which keeps shapes but not values. When
+    this fails, TorchRL reads the values again and the reader could use it."""
+    from torchrl.data.datasets import MinariExperienceReplay
+
+    rb = MinariExperienceReplay(DATASET_ID, batch_size=4, root=tmp_path / "torchrl",
+                                download=False, load_from_local_minari=True)
+    data = rb[:]
+    assert data["action"].shape == (sum(LENGTHS), 1)
+    # the file holds actions 100 e + t and observations (e, t, t / 2), mostly non-zero
+    assert not data["action"].any() and not data["observation"].any()
