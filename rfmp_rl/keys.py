@@ -7,6 +7,9 @@ Observation layout: ``observation`` holds the observation window ``(..., 2, D_ob
 time, ``[o^c, o^{s-1}]`` (context first, reference last) — what TorchRL's
 ``CatFrames(N=2, dim=-2)`` produces. Camera entries hold ``(..., 2, C, H, W)`` the same way.
 ``obs_gap`` holds ``s - c`` when T_o > 2.
+
+Stored episodes may carry ``timestamp``: float64 ``(T,)``, seconds since the episode's first step
+(the first value is 0.0). It is step metadata, never an observation or an action.
 """
 
 from __future__ import annotations
@@ -18,7 +21,9 @@ ACTION = "action"
 ACTION_IS_PAD = "action_is_pad"
 PRIOR_NOISE = "prior_noise"
 FLOW_TIME = "flow_time"
+TIMESTAMP = "timestamp"
 
 __all__ = [
     "OBSERVATION", "PIXELS", "OBS_GAP", "ACTION", "ACTION_IS_PAD", "PRIOR_NOISE", "FLOW_TIME",
+    "TIMESTAMP",
 ]

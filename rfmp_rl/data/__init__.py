@@ -1,7 +1,7 @@
 """Demonstration data in TorchRL replay buffers: readers, the store and the paper's sampler."""
 
 from rfmp_rl.data.dp_zarr import read_dp_zarr, write_dp_zarr
-from rfmp_rl.data.episodes import DataError, Manifest, make_episode
+from rfmp_rl.data.episodes import DataError, Manifest, make_episode, step_timestamps
 from rfmp_rl.data.lasa import (
     LASA_MULTI_MODELS,
     LASA_SHAPES,
@@ -10,6 +10,8 @@ from rfmp_rl.data.lasa import (
     load_lasa_sphere,
     read_lasa,
 )
+from rfmp_rl.data.lerobot import read_lerobot
+from rfmp_rl.data.minari import read_minari
 from rfmp_rl.data.robomimic import read_robomimic, write_robomimic
 from rfmp_rl.data.rosbag import RosbagConfig, TopicConfig, load_rosbag_config, read_rosbags
 from rfmp_rl.data.slices import SlicesToChunks
@@ -25,6 +27,7 @@ __all__ = [
     "DataError",
     "Manifest",
     "make_episode",
+    "step_timestamps",
     "DemonstrationStore",
     "HorizonContextSampler",
     "ContextChunk",
@@ -33,6 +36,8 @@ __all__ = [
     "episode_windows",
     "read_dp_zarr",
     "write_dp_zarr",
+    "read_lerobot",
+    "read_minari",
     "read_robomimic",
     "write_robomimic",
     "read_rosbags",

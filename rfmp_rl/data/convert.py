@@ -7,6 +7,10 @@ Usage::
     python -m rfmp_rl.data.convert robomimic lift_ph.hdf5 --out data/lift --filter train
     python -m rfmp_rl.data.convert ros bags/ --config topics.yaml --out data/teleop
     python -m rfmp_rl.data.convert lasa LShape,Sine --out data/lasa
+    python -m rfmp_rl.data.convert lerobot ~/datasets/pusht --out data/pusht_lerobot \\
+        --episodes 0,1,2 --keys observation.state,observation.image=obs/cam
+    MINARI_DATASETS_PATH=~/minari python -m rfmp_rl.data.convert minari D4RL/door/human-v2 \\
+        --out data/door
 
 (also installed as the ``rfmp-convert`` command). The store folder holds the memory-mapped
 steps, ``manifest.json`` and the episode lengths; open it with ``DemonstrationStore.load``.
@@ -26,7 +30,7 @@ from rfmp_rl.data.store import check_store_destination
 
 __all__ = ["read_source", "main"]
 
-FORMATS = ("dp_zarr", "robomimic", "ros", "lasa")
+FORMATS = ("dp_zarr", "robomimic", "ros", "lasa", "lerobot", "minari")
 
 
 def read_source(
@@ -36,18 +40,27 @@ def read_source(
     keys: list[str] | None = None,
     filter_key: str | None = None,
     config: str | None = None,
+    episodes: list[int] | None = None,
+    rate_hz: float | None = None,
 ) -> tuple[list[TensorDict], Manifest]:
-    """Dispatch to the reader of ``fmt`` (one of ``dp_zarr, robomimic, ros, lasa``).
+    """Dispatch to the reader of ``fmt`` (one of `FORMATS`). ``episodes`` selects episodes by
+    the source's index (``lerobot``, ``minari``); ``rate_hz`` is the control rate of a source
+    that records none (``minari``, ``dp_zarr``).
 
     Example:
         >>> eps, manifest = read_source("lasa", "LShape")
         >>> manifest.format, manifest.episodes
         ('lasa', 7)
     """
+    if episodes is not None and fmt not in ("lerobot", "minari"):
+        raise ValueError(f"{fmt}: --episodes is read by the lerobot and minari formats only")
+    if rate_hz is not None and fmt not in ("dp_zarr", "minari"):
+        raise ValueError(f"{fmt}: --rate is read by the dp_zarr and minari formats only (the "
+                         "others record their rate)")
     if fmt == "dp_zarr":
-        from rfmp_rl.data.dp_zarr import read_dp_zarr
+        from rfmp_rl.data.dp_zarr import PUSHT_RATE_HZ, read_dp_zarr
 
-        return read_dp_zarr(source, keys)
+        return read_dp_zarr(source, keys, rate_hz=rate_hz or PUSHT_RATE_HZ)
     if fmt == "robomimic":
         from rfmp_rl.data.robomimic import read_robomimic
 
@@ -63,16 +76,38 @@ def read_source(
         from rfmp_rl.data.lasa import read_lasa
 
         return read_lasa(source.split(","))
+    if fmt == "lerobot":
+        from rfmp_rl.data.lerobot import read_lerobot
+
+        return read_lerobot(source, episodes=episodes, keys=keys)
+    if fmt == "minari":
+        from rfmp_rl.data.minari import read_minari
+
+        if keys is not None:
+            raise ValueError("minari: --keys is not read (every numeric entry is stored)")
+        return read_minari(source, episodes=episodes, rate_hz=rate_hz)
     raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
+
+
+def _indices(text: str) -> list[int]:
+    try:
+        return [int(part) for part in text.split(",") if part.strip()]
+    except ValueError as err:
+        raise ValueError(f"--episodes takes comma-separated integers, got {text!r}") from err
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="rfmp-convert", description=__doc__.split("\n")[0])
     parser.add_argument("format", choices=FORMATS)
-    parser.add_argument("source", help="file, folder, bag(s) or LASA shape names (comma-separated)")
+    parser.add_argument("source", help="file, folder, bag(s), LASA shape names (comma-separated) "
+                        "or a Minari dataset id")
     parser.add_argument("--out", type=Path, help="store folder to write: missing, empty, or a "
                         "store written before (replaced atomically); anything else is refused")
-    parser.add_argument("--keys", help="comma-separated keys to read (zarr arrays / robomimic obs)")
+    parser.add_argument("--keys", help="comma-separated keys to read (zarr arrays / robomimic obs "
+                        "/ LeRobot features, each optionally renamed: name=store/key)")
+    parser.add_argument("--episodes", help="LeRobot / Minari: comma-separated episode indices")
+    parser.add_argument("--rate", type=float, help="control rate in Hz of a source that records "
+                        "none (minari; dp_zarr, default 10): timestamps = step / rate")
     parser.add_argument("--filter", dest="filter_key", help="robomimic mask/<filter> split")
     parser.add_argument("--config", help="ROS: YAML mapping topics to keys and the control rate")
     parser.add_argument("--dry-run", action="store_true", help="read and print; write nothing")
@@ -88,16 +123,18 @@ def main(argv: list[str] | None = None) -> int:
             keys=args.keys.split(",") if args.keys else None,
             filter_key=args.filter_key,
             config=args.config,
+            episodes=_indices(args.episodes) if args.episodes else None,
+            rate_hz=args.rate,
         )
-    except (DataError, FileNotFoundError, ValueError) as err:
+    except (DataError, FileNotFoundError, ValueError, ImportError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)
         return 2
     print(manifest)
     if not args.dry_run:
         from rfmp_rl.data.store import DemonstrationStore
 
-        store = DemonstrationStore.from_episodes(episodes, manifest, memmap=True)
         try:
+            store = DemonstrationStore.from_episodes(episodes, manifest, memmap=True)
             path = store.save(args.out)
         except (DataError, OSError) as err:
             print(f"rfmp-convert: error: {err} (any previous store at {args.out} is unchanged)",

@@ -6,6 +6,10 @@ episode ``e`` is ``[episode_ends[e-1], episode_ends[e])``. Diffusion Policy's Pu
 (``pusht_cchi_v7_replay.zarr``: 206 episodes, 25,650 steps at 10 Hz) stores its 96x96 images as
 float32 holding integers in [0, 255]; they are converted to ``uint8`` here (a non-integral or
 out-of-range pixel is an error, not a silent rounding).
+
+The store has no clock: each episode gets ``timestamp`` = ``step / rate_hz`` (float64, from 0.0)
+at the rate given to `read_dp_zarr` (Push-T's 10 Hz by default); with ``rate_hz=None`` no
+timestamps are written.
 """
 
 from __future__ import annotations
@@ -16,7 +20,14 @@ from pathlib import Path
 import numpy as np
 from tensordict import TensorDict
 
-from rfmp_rl.data.episodes import DataError, Manifest, check_finite, make_episode
+from rfmp_rl.data.episodes import (
+    DataError,
+    Manifest,
+    check_finite,
+    make_episode,
+    step_timestamps,
+)
+from rfmp_rl.keys import TIMESTAMP
 
 __all__ = ["read_dp_zarr", "write_dp_zarr", "PUSHT_RATE_HZ"]
 
@@ -55,7 +66,8 @@ def read_dp_zarr(
         keys: the ``data/`` arrays to read (default: all). ``action`` is always read.
         image_keys: arrays to treat as images (``uint8 (T, H, W, C)``); default: every 4-D array
             whose last axis is 1, 3 or 4.
-        rate_hz: the control rate to record in the manifest (Push-T: 10 Hz).
+        rate_hz: the control rate to record in the manifest (Push-T: 10 Hz); each episode's
+            ``timestamp`` is ``step / rate_hz``. ``None``: unknown, no timestamps.
 
     Returns:
         ``(episodes, manifest)``; episode keys keep the store's names.
@@ -140,7 +152,10 @@ def read_dp_zarr(
     for e, (start, end) in enumerate(zip(starts, ends, strict=True)):
         for name, values in decoded.items():
             check_finite(values[start:end], file=file, key=f"data/{name}", episode=e)
-        ep = make_episode({n: v[start:end] for n, v in decoded.items()}, file=file, episode=e)
+        arrays = {n: v[start:end] for n, v in decoded.items()}
+        if rate_hz is not None:
+            arrays[TIMESTAMP] = step_timestamps(end - start, rate_hz)
+        ep = make_episode(arrays, file=file, episode=e)
         manifest.add(ep, name=e)
         episodes.append(ep)
     return episodes, manifest

@@ -7,6 +7,13 @@ the source stores them, integer or bool flags. Keys keep the source's names (nes
 nested sources, e.g. robomimic's ``("obs", "robot0_eef_pos")``) except that every reader names
 the commanded action ``action``.
 
+Per-step time: an episode may carry ``timestamp`` (`rfmp_rl.keys.TIMESTAMP`), float64 ``(T,)``,
+seconds since the episode's first step (first value 0.0, strictly increasing). It is step
+metadata: no sampler or policy reads it as an observation or action, and the store keeps it
+float64. Readers derive it from the source's own time column where there is one (LeRobot's
+``timestamp``) and otherwise as ``step / rate`` when the control rate is known
+(`step_timestamps`); with no known rate they write none rather than invent one.
+
 Nothing is dropped silently: `make_episode` refuses an empty episode, arrays of different
 lengths and NaN/inf values with a `DataError` naming the file, key, episode and step, and the
 manifest counts every episode and step that was read.
@@ -24,7 +31,10 @@ import torch
 from tensordict import TensorDict
 from tensordict.utils import NestedKey
 
-__all__ = ["DataError", "Manifest", "make_episode", "key_name", "parse_key", "check_finite"]
+from rfmp_rl.keys import TIMESTAMP
+
+__all__ = ["DataError", "Manifest", "make_episode", "key_name", "parse_key", "check_finite",
+           "step_timestamps", "check_timestamps"]
 
 
 class DataError(ValueError):
@@ -104,6 +114,44 @@ def check_finite(
         )
 
 
+def step_timestamps(length: int, rate_hz: float) -> np.ndarray:
+    """Timestamps of ``length`` steps at a fixed control rate: ``float64 (T,)`` = ``i / rate_hz``.
+
+    Example:
+        >>> step_timestamps(4, 10.0).tolist()
+        [0.0, 0.1, 0.2, 0.3]
+    """
+    if not rate_hz > 0:
+        raise ValueError(f"step_timestamps: rate_hz must be > 0, got {rate_hz}")
+    return np.arange(int(length), dtype=np.float64) / float(rate_hz)
+
+
+def check_timestamps(
+    values: np.ndarray | torch.Tensor, *, file: str, key: str, episode: int | str
+) -> None:
+    """Raise `DataError` unless ``values`` is a ``(T,)`` float array starting at 0.0 and strictly
+    increasing (naming the first step that is not later than the one before).
+
+    Example:
+        >>> check_timestamps(np.array([0.0, 0.1, 0.1]), file="d", key="timestamp", episode=0)
+        Traceback (most recent call last):
+        ...
+        rfmp_rl.data.episodes.DataError: d: key timestamp, episode 0, step 2: timestamps not incr...
+    """
+    arr = values.numpy() if isinstance(values, torch.Tensor) else np.asarray(values)
+    if arr.ndim != 1 or not np.issubdtype(arr.dtype, np.floating):
+        raise DataError(f"timestamps must be a float (T,) array, got {arr.dtype} {arr.shape}",
+                        file=file, key=key, episode=episode)
+    if arr.size and arr[0] != 0.0:
+        raise DataError(f"the first timestamp must be 0.0, got {arr[0]!r}", file=file, key=key,
+                        episode=episode, step=0)
+    bad = np.flatnonzero(~(np.diff(arr) > 0))
+    if bad.size:
+        step = int(bad[0]) + 1
+        raise DataError(f"timestamps not increasing ({arr[step]:g} after {arr[step - 1]:g})",
+                        file=file, key=key, episode=episode, step=step)
+
+
 def make_episode(
     arrays: Mapping[NestedKey, np.ndarray | torch.Tensor],
     *,
@@ -119,7 +167,8 @@ def make_episode(
 
     Raises:
         DataError: no arrays, an empty episode, arrays of different lengths (naming the first
-            key that disagrees and the reference key) or a NaN/inf value (naming key and step).
+            key that disagrees and the reference key), a NaN/inf value (naming key and step), or
+            a ``timestamp`` that is not float64 ``(T,)`` from 0.0, strictly increasing.
 
     Example:
         >>> ep = make_episode({"action": np.zeros((5, 2)), ("obs", "pos"): np.ones((5, 3))},
@@ -150,6 +199,11 @@ def make_episode(
     out = TensorDict({}, batch_size=[length])
     for key, value in arrays.items():
         check_finite(value, file=file, key=key_name(key), episode=episode)
+        if key == TIMESTAMP:
+            if value.dtype not in (np.float64, torch.float64):
+                raise DataError(f"timestamps must be float64, got {value.dtype}", file=file,
+                                key=TIMESTAMP, episode=episode)
+            check_timestamps(value, file=file, key=TIMESTAMP, episode=episode)
         if not isinstance(value, torch.Tensor):
             value = torch.from_numpy(np.ascontiguousarray(value))
         out.set(key, value)

@@ -263,7 +263,9 @@ def read_lasa(
     ``space="sphere"`` gives `lasa_episodes` (points on S^2); ``space="plane"`` the same
     demonstrations in the normalised plane (largest coordinate ``extent``, goal at the origin),
     observation ``(T, 2)`` and action = the next point. The manifest's rate is one over the mean
-    downsampled sampling period of the shapes.
+    downsampled sampling period of the shapes. Each episode also holds ``timestamp`` float64
+    ``(T,)`` = ``step x`` its own demonstration's downsampled sampling period (LASA's periods
+    differ between demonstrations).
 
     Example:
         >>> eps, manifest = read_lasa(["LShape", "Sine"])
@@ -297,5 +299,8 @@ def read_lasa(
         space="S2" if space == "sphere" else "plane",
     )
     for i, ep in enumerate(episodes):
+        _, demo_dt, _ = _read_raw(shapes[i // _NUM_DEMOS])
+        period = float(demo_dt[i % _NUM_DEMOS]) * downsample
+        ep.set(keys.TIMESTAMP, torch.arange(ep.batch_size[0], dtype=torch.float64) * period)
         manifest.add(ep, name=f"{shapes[i // _NUM_DEMOS]}/{i % _NUM_DEMOS}")
     return episodes, manifest

@@ -18,7 +18,9 @@ An episode read by `read_robomimic` (and accepted by `write_robomimic`) has
 * ``reward (T, 1)`` — dtype as stored; ``done (T, 1)`` bool (``dones != 0``). Both carry the
   trailing singleton dimension of TorchRL (as in `rfmp_rl.data.lasa_episodes`);
 * ``("obs", key)`` and, on request, ``("next_obs", key)`` — dtype and shape as stored;
-* ``states`` when the demo has it.
+* ``states`` when the demo has it;
+* ``timestamp`` float64 ``(T,)`` = ``step / control_freq`` when ``env_args`` gives the control
+  rate (``env_kwargs.control_freq``, 20 Hz in the released sets); none when it does not.
 
 Bad input raises `DataError` (a ``ValueError``) whose message names the file and, where it
 applies, the key (as its path inside the demo: ``actions``, ``obs/robot0_eef_pos``,
@@ -44,7 +46,14 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from rfmp_rl.data.episodes import DataError, Manifest, check_finite, make_episode
+from rfmp_rl.data.episodes import (
+    DataError,
+    Manifest,
+    check_finite,
+    make_episode,
+    step_timestamps,
+)
+from rfmp_rl.keys import TIMESTAMP
 
 if TYPE_CHECKING:  # pragma: no cover
     import h5py
@@ -278,6 +287,10 @@ def read_robomimic(
                         file=file, key=f"obs/{extra[0]}", episode=name,
                     )
             episodes.append(_read_demo(demo, name, keys, with_next_obs, file=file))
+            if manifest.rate_hz is not None:
+                length = int(episodes[-1].batch_size[0])
+                episodes[-1].set(TIMESTAMP, torch.from_numpy(
+                    step_timestamps(length, manifest.rate_hz)))
             manifest.add(episodes[-1], name=name)
         if filter_key is None and total is not None and total != manifest.steps:
             raise DataError(

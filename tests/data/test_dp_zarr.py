@@ -67,7 +67,7 @@ def test_round_trip_is_exact(tmp_path):
 def test_selected_keys_always_include_action(tmp_path):
     path, _ = _fixture(tmp_path)
     episodes, manifest = read_dp_zarr(path, keys=["state"])
-    assert sorted(manifest.keys) == ["action", "state"]
+    assert sorted(manifest.keys) == ["action", "state", "timestamp"]
 
 
 def test_convert_command_writes_a_loadable_store(tmp_path, capsys):
@@ -142,3 +142,13 @@ def test_image_value_out_of_range(tmp_path):
     path, _ = _fixture(tmp_path, img=img)
     with pytest.raises(DataError, match=r"key data/img, episode 1, step 1: image value 255.5"):
         read_dp_zarr(path)
+
+
+def test_timestamps_from_the_rate(tmp_path):
+    path, _ = _fixture(tmp_path)
+    episodes, _ = read_dp_zarr(path, keys=["state"], rate_hz=10.0)
+    ts = episodes[1]["timestamp"]
+    assert ts.dtype == torch.float64
+    assert ts.tolist() == [i / 10.0 for i in range(episodes[1].batch_size[0])]
+    episodes, manifest = read_dp_zarr(path, keys=["state"], rate_hz=None)
+    assert "timestamp" not in episodes[0] and "timestamp" not in manifest.keys

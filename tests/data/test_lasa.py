@@ -130,3 +130,16 @@ def test_episodes_accept_a_single_name():
     episodes = lasa_episodes("Worm", downsample=20, extent=1.0)
     assert len(episodes) == 7 and episodes[0].batch_size == (50,)
     assert (torch.cat(episodes)["shape_id"] == 0).all()
+
+
+def test_read_lasa_timestamps_use_each_demonstrations_period():
+    from rfmp_rl.data import read_lasa
+
+    episodes, manifest = read_lasa("Sine", downsample=10)
+    periods = load_lasa("Sine", downsample=10)["demo_dt"].double()
+    assert manifest.keys["timestamp"] == {"shape": [], "dtype": "float64"}
+    for d, ep in enumerate(episodes):
+        ts = ep["timestamp"]
+        assert ts.dtype == torch.float64 and ts[0] == 0.0
+        torch.testing.assert_close(ts[1:] - ts[:-1], periods[d].expand(99), rtol=1e-6, atol=0)
+    assert not torch.equal(episodes[0]["timestamp"], episodes[1]["timestamp"])

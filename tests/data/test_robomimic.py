@@ -210,14 +210,24 @@ def test_manifest(tmp_path):
         "obs/robot0_eef_pos": {"shape": [3], "dtype": "float64"},
         "obs/robot0_eef_quat": {"shape": [4], "dtype": "float32"},
         "obs/robot0_gripper_qpos": {"shape": [2], "dtype": "float64"},
+        "timestamp": {"shape": [], "dtype": "float64"},
     }
     json.loads(manifest.to_json())
+
+
+def test_timestamps_from_control_freq(tmp_path):
+    path = write_fixture(tmp_path / "t.hdf5", {"demo_0": demo_arrays(5, 0)})
+    (ep,), _ = read_robomimic(path)
+    assert ep["timestamp"].dtype == torch.float64
+    assert ep["timestamp"].tolist() == [i / 20.0 for i in range(5)]
 
 
 def test_rate_unknown_without_control_freq(tmp_path):
     demos = {"demo_0": demo_arrays(3, 0)}
     path = write_fixture(tmp_path / "a.hdf5", demos, env_args={"env_name": "X", "env_kwargs": {}})
-    assert read_robomimic(path)[1].rate_hz is None
+    (ep,), manifest = read_robomimic(path)
+    assert manifest.rate_hz is None
+    assert "timestamp" not in ep and "timestamp" not in manifest.keys  # no rate, no clock
     path = write_fixture(tmp_path / "b.hdf5", demos, env_args=None)
     _, manifest = read_robomimic(path)
     assert manifest.rate_hz is None and manifest.extra["env_args"] is None

@@ -179,3 +179,38 @@ def test_episodes_with_different_keys_are_refused():
     manifest.add(a, name=0)
     with pytest.raises(DataError, match=r"f: key state, episode 1: per-step shape"):
         manifest.add(b, name=1)
+
+
+@pytest.mark.parametrize("memmap", [False, True])
+def test_timestamps_stay_float64_through_save_and_load(tmp_path, memmap):
+    # values a float32 cast would change: 1/3, 1e-9 steps, a large offset
+    ts = [torch.tensor([0.0, 1.0 / 3.0, 0.5 + 1e-9, 12345.678901234567], dtype=torch.float64),
+          torch.tensor([0.0, 0.1, 0.2], dtype=torch.float64)]
+    eps = [make_episode({"action": torch.zeros(len(t), 2), "timestamp": t}, file="m", episode=i)
+           for i, t in enumerate(ts)]
+    store = DemonstrationStore.from_episodes(eps, memmap=memmap)
+    assert store.manifest.keys["timestamp"] == {"shape": [], "dtype": "float64"}
+    back = DemonstrationStore.load(store.save(tmp_path / "store"))
+    for i, t in enumerate(ts):
+        got = back.episode(i)["timestamp"]
+        assert got.dtype == torch.float64
+        assert torch.equal(got, t)
+    assert back.manifest.keys["timestamp"] == {"shape": [], "dtype": "float64"}
+
+
+def test_timestamps_are_not_sampled_as_observations():
+    eps = [TensorDict({"observation": torch.zeros(6, 1), "action": torch.zeros(6, 1),
+                       "timestamp": torch.arange(6, dtype=torch.float64) / 10}, [6])]
+    batch = DemonstrationStore.from_episodes(eps).replay_buffer(
+        3, ["observation"], batch_size=4).sample()
+    assert "timestamp" not in batch
+
+
+@pytest.mark.parametrize(("values", "message"), [
+    (torch.tensor([0.0, 0.1, 0.1], dtype=torch.float64), "step 2: timestamps not increasing"),
+    (torch.tensor([0.5, 0.6, 0.7], dtype=torch.float64), "first timestamp must be 0.0"),
+    (torch.tensor([0.0, 0.1, 0.2], dtype=torch.float32), "must be float64"),
+])
+def test_bad_timestamps_refused(values, message):
+    with pytest.raises(DataError, match=message):
+        make_episode({"action": torch.zeros(3, 1), "timestamp": values}, file="f", episode=0)
