@@ -5,7 +5,7 @@ Usage::
     python -m rfmp_rl.data.convert dp_zarr ../shared/data/pusht/pusht_cchi_v7_replay.zarr \\
         --out data/pusht_store
     python -m rfmp_rl.data.convert robomimic lift_ph.hdf5 --out data/lift --filter train
-    python -m rfmp_rl.data.convert ros bags/ --config topics.yaml --out data/teleop
+    python -m rfmp_rl.data.convert ros bags/ --config topics.yaml --out data/teleop --skip-bad
     python -m rfmp_rl.data.convert lasa LShape,Sine --out data/lasa
 
 (also installed as the ``rfmp-convert`` command). The store folder holds the memory-mapped
@@ -28,6 +28,12 @@ __all__ = ["read_source", "main"]
 
 FORMATS = ("dp_zarr", "robomimic", "ros", "lasa")
 
+ROS_HELP = """ROS bags: --config names a YAML file that maps topics to keys and sets the control
+rate, flat action/observation vectors, and what a gap in a stream does (max_gap_s, on_gap). Every
+field is described in README.md, section "ROS bags: the topic config", and in the docstring of
+rfmp_rl.data.rosbag. --skip-bad skips unreadable bags and lists them at the end and in the
+manifest; without it the first unreadable bag stops the conversion."""
+
 
 def read_source(
     fmt: str,
@@ -36,8 +42,11 @@ def read_source(
     keys: list[str] | None = None,
     filter_key: str | None = None,
     config: str | None = None,
+    skip_bad: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Dispatch to the reader of ``fmt`` (one of ``dp_zarr, robomimic, ros, lasa``).
+
+    ``skip_bad`` (ROS only) skips unreadable bags and lists them in ``manifest.skipped``.
 
     Example:
         >>> eps, manifest = read_source("lasa", "LShape")
@@ -58,7 +67,7 @@ def read_source(
         if config is None:
             raise ValueError("ros: --config topics.yaml is required (it maps topics to keys)")
         # A bag, a rosbag2 folder, or a folder of bags (read in name order, one episode each).
-        return read_rosbags([source], load_rosbag_config(config))
+        return read_rosbags([source], load_rosbag_config(config), skip_bad=skip_bad)
     if fmt == "lasa":
         from rfmp_rl.data.lasa import read_lasa
 
@@ -67,18 +76,25 @@ def read_source(
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="rfmp-convert", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="rfmp-convert", description=__doc__.split("\n")[0], epilog=ROS_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("format", choices=FORMATS)
     parser.add_argument("source", help="file, folder, bag(s) or LASA shape names (comma-separated)")
     parser.add_argument("--out", type=Path, help="store folder to write: missing, empty, or a "
                         "store written before (replaced atomically); anything else is refused")
     parser.add_argument("--keys", help="comma-separated keys to read (zarr arrays / robomimic obs)")
     parser.add_argument("--filter", dest="filter_key", help="robomimic mask/<filter> split")
-    parser.add_argument("--config", help="ROS: YAML mapping topics to keys and the control rate")
+    parser.add_argument("--config", help="ROS: the topic config YAML (see below)")
+    parser.add_argument("--skip-bad", action="store_true",
+                        help="ROS: skip unreadable bags (corrupt, missing topic, gap); list them")
     parser.add_argument("--dry-run", action="store_true", help="read and print; write nothing")
     args = parser.parse_args(argv)
     if args.out is None and not args.dry_run:
         parser.error("--out is required unless --dry-run")
+    if args.skip_bad and args.format != "ros":
+        parser.error("--skip-bad applies to the ros format only")
     try:
         if not args.dry_run:  # before the read: a refused --out costs nothing
             check_store_destination(args.out)
@@ -88,6 +104,7 @@ def main(argv: list[str] | None = None) -> int:
             keys=args.keys.split(",") if args.keys else None,
             filter_key=args.filter_key,
             config=args.config,
+            skip_bad=args.skip_bad,
         )
     except (DataError, FileNotFoundError, ValueError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)
@@ -104,6 +121,11 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         print(f"wrote {path} ({manifest.episodes} episodes, {manifest.steps} steps)")
+    bags = [item for item in manifest.skipped if "episode" not in item]
+    if bags:
+        print(f"skipped {len(bags)} unreadable bag(s):")
+        for item in bags:
+            print(f"  {item['file']}: {item['reason']}")
     return 0
 
 

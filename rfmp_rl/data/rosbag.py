@@ -1,20 +1,29 @@
 """ROS 1 and ROS 2 bags as episodes on one control-rate time grid.
 
 `read_rosbags` reads ``.bag`` files (ROS 1) and rosbag2 recordings (a folder with
-``metadata.yaml``, or bare ``.db3`` / ``.mcap`` storage files) with ``rosbags==0.11.9``
-(``pip install rfmp_rl[data]``); compressed images also need OpenCV (``opencv-python``). A
-`RosbagConfig` maps each topic to an episode key::
+``metadata.yaml``, or a bare ``.db3`` / ``.mcap`` storage file) with ``rosbags==0.11.9``
+(``pip install rfmp_rl[data]``); compressed images also need OpenCV (``opencv-python``). A folder
+that is no bag itself stands for the bags in it, in name order, one bag each (so a flat folder
+of ``.db3`` / ``.mcap`` files is one bag per file; a recording split over several storage files
+needs its ``metadata.yaml``). A `RosbagConfig` maps topics to episode keys::
 
     rate_hz: 10                # the control rate every stream is resampled to
-    time_reference: action     # optional: this key's first/last stamps bound the episode
-    topics:
+    topics:                    # one key per topic
       /robot/ee_pose: {key: ee_pose}                    # PoseStamped / Pose / TransformStamped
       /joint_states:  {key: joints, field: position}    # JointState position|velocity|effort
       /camera/image:  {key: image}                      # Image rgb8 / bgr8 / mono8
       /camera/compressed: {key: wrist}                  # CompressedImage (jpeg, png)
       /gripper:       {key: gripper}                    # Float32 / Float64 / Bool
+    action: [/cmd_pose, /gripper_cmd]     # one flat float32 vector from several topics
+    action_manifold: R3 x S3 x R1         # optional: checked against the flat layout
+    observation: {state: [/ee_pose, {topic: /joint_states, field: velocity}]}
+    time_reference: action     # optional: this key's first/last stamps bound the episode
     segment:
       topic: /episode_marker   # std_msgs/Bool (True = start) or std_msgs/String "start" / "end"
+    max_gap_s: 0.5             # optional: the longest a stream may go without a message
+    on_gap: error              # or split
+
+Unknown fields are refused (`DataError` listing the allowed ones, `CONFIG_FIELDS`).
 
 **Time.** A message's time is its ``header.stamp`` when the type has a header and the stamp is
 non-zero, else the time the bag recorded it. Within each topic, messages are ordered by that
@@ -29,26 +38,49 @@ published once per edge or continuously; a start without an end is an error. Onl
 timed inside ``[start, end]`` belong to the episode.
 
 **Grid.** By default an episode covers the overlap of all its streams, ``[max first stamp,
-min last stamp]``; with ``time_reference`` it covers that key's span, and the other streams are
-held at their first/last value outside their own span. The grid is ``t0, t0 + 1/rate, ...``
-up to the end of the span (both ends included when they fall on the grid). Values on it are:
+min last stamp]``; with ``time_reference`` it covers that key's span (for a flat vector: the
+overlap of its topics), and the other streams are held at their first/last value outside their
+own span. The grid is ``t0, t0 + 1/rate, ...`` up to the end of the span (both ends included
+when they fall on the grid). Values on it are:
 
 * vectors (positions, joint values, scalars): linear interpolation (`resample_linear`);
 * orientations: normalised, made hemisphere-continuous (``q_k -> -q_k`` when its dot product
-  with ``q_{k-1}`` is negative, `rfmp_rl.manifolds.quaternion.hemisphere_continuous`), then
-  slerp (`resample_slerp`) — so a sign flip in the recording disappears;
+  with ``q_{k-1}`` is negative, `rfmp_rl.manifolds.quaternion.hemisphere_continuous`), slerped
+  (`resample_slerp`), then the whole episode's sign is chosen so that ``w >= 0`` at its first
+  step — so a sign flip in the recording disappears;
 * images and bools: the nearest message in time (`nearest_indices`, ties to the earlier one).
+
+**Gaps.** A stream that goes longer than ``max_gap_s`` without a message inside the recording's
+span — between two messages, before its first message (a late start) or after its last (an
+early end) — is a gap. The span is the time reference's, else from the first message of any
+stream to the last. ``max_gap_s`` defaults to the larger of 0.5 s and 3 grid periods (raise it
+for topics published only on change). ``on_gap: error`` (default) raises a `DataError` naming
+the bag, topic, episode and the gap's start, end and length; ``on_gap: split`` cuts the
+episode at every gap into the parts ``name~0``, ``name~1``, ... where all streams have data and
+lists each gap in ``Manifest.gaps`` (a part too short to hold every stream is listed in
+``Manifest.skipped``). Shorter gaps are interpolated over as above.
 
 **Keys, shapes and dtypes.** A key ``"a/b"`` becomes the nested key ``("a", "b")``. Per step:
 
-* poses: ``(key, "position")`` float32 ``(3,)`` and ``(key, "orientation")`` float32 ``(4,)``, a
-  unit quaternion in ROS's xyzw order (interpolated in float64, stored as float32);
+* ``timestamp``: float64 ``()``, seconds since the episode's first step (the grid);
+* poses under ``topics``: ``(key, "position")`` float32 ``(3,)`` and ``(key, "orientation")``
+  float32 ``(4,)``, a unit quaternion in xyzw order — ROS's order and the S^3 convention of
+  `rfmp_rl.manifolds` (identity ``(0, 0, 0, 1)``) — interpolated in float64;
 * JointState ``field`` (default ``position``), Float32/Float64 and Float32/Float64MultiArray:
   float32 ``(D,)`` (``(1,)`` for scalars);
 * Bool: bool ``(1,)``;
 * Image: uint8 ``(H, W, 3)`` RGB (``bgr8`` is converted), ``mono8`` -> ``(H, W, 1)``;
 * CompressedImage: decoded by OpenCV to uint8 RGB ``(H, W, 3)`` (grey -> ``(H, W, 1)``, alpha
   dropped). Only the frames the grid uses are decoded.
+* flat vectors: ``action: [topics]`` -> ``action``, ``observation: [topics]`` ->
+  ``observation``, ``observation: {name: [topics]}`` -> ``("observation", name)``: float32
+  ``(D,)``, the topics' values resampled as above and concatenated in list order — a pose is 7
+  values (x, y, z, qx, qy, qz, qw), a Bool is 1.0/0.0, no images. An entry is a topic name or
+  ``{topic, field, joints}``; a topic may feed several keys but is read one way.
+  ``action_manifold`` / ``observation_manifold`` (a string, or ``{name: string}`` for the
+  mapping form) are parsed by `rfmp_rl.manifolds.parse_manifold` and must match the layout,
+  where orientations are ``S3`` and all else is ``R`` (``"R3 x S3 x R1"`` for a pose and a
+  gripper). ``Manifest.extra["vectors"]`` lists each vector's columns per topic.
 
 **JointState names.** Messages may list the joints in another order than the first message;
 they are reordered by name. With ``joints: [j1, j2]`` the topic yields those joints in that
@@ -60,11 +92,14 @@ known, the topic, key and episode: a missing path, a configured topic absent fro
 message lists the bag's topics), an unsupported message type, an unreadable or truncated bag,
 NaN/inf in a message (``step`` is then the message's index on its topic, counted from 0 in
 recording order), a stream without messages in an episode or without time overlap with the
-others, an unsupported image encoding and an undecodable compressed image.
+others, a gap (``on_gap: error``), a flat layout that does not match its declared manifold, an
+unsupported image encoding and an undecodable compressed image. With ``skip_bad=True`` a bag
+that raises is skipped and listed in ``Manifest.skipped`` instead.
 
 The `rfmp_rl.data.episodes.Manifest` has format ``"ros1"`` or ``"ros2"`` (``"ros1+ros2"`` when
-given both) and ``extra`` holds the files, the configuration, each topic's message types and the
-number of messages read from it, and each episode's ``[first, last]`` grid stamp in nanoseconds.
+given both), ``gaps`` and ``skipped`` as above, and ``extra`` holds the files, the
+configuration, the gap limit used, each topic's message types and the number of messages read
+from it, and each episode's ``[first, last]`` grid stamp in nanoseconds.
 """
 
 from __future__ import annotations
@@ -82,11 +117,15 @@ import torch
 from tensordict import TensorDict
 
 from rfmp_rl.data.episodes import DataError, Manifest, make_episode
+from rfmp_rl.manifolds import Euclidean, Product, Sphere, parse_manifold
 from rfmp_rl.manifolds.quaternion import hemisphere_continuous
 
 __all__ = [
     "RosbagConfig",
     "TopicConfig",
+    "VectorPart",
+    "CONFIG_FIELDS",
+    "TIMESTAMP",
     "load_rosbag_config",
     "read_rosbags",
     "slerp",
@@ -114,6 +153,8 @@ _MARKER_TYPES = ("std_msgs/msg/Bool", "std_msgs/msg/String")
 _JOINT_STATE = "sensor_msgs/msg/JointState"
 _JOINT_FIELDS = ("position", "velocity", "effort")
 _IMAGE_CHANNELS = {"rgb8": 3, "bgr8": 3, "mono8": 1}
+#: The per-step key of the grid times: float64 seconds since the episode's first step.
+TIMESTAMP = "timestamp"
 
 
 # --------------------------------------------------------------------------------------------
@@ -144,16 +185,12 @@ class TopicConfig:
 
     def __post_init__(self) -> None:
         if not isinstance(self.key, str) or not self.key or "" in self.key.split("/"):
-            raise ValueError(
+            raise DataError(
                 f"topic key must be a non-empty name like 'a' or 'a/b', got {self.key!r}"
             )
-        if self.field is not None and self.field not in _JOINT_FIELDS:
-            raise ValueError(f"field must be one of {_JOINT_FIELDS}, got {self.field!r}")
+        _check_joint_options(self.field, self.joints)
         if self.joints is not None:
-            joints = tuple(self.joints)
-            if not joints or len(set(joints)) != len(joints):
-                raise ValueError(f"joints must be distinct names, got {list(joints)}")
-            object.__setattr__(self, "joints", joints)
+            object.__setattr__(self, "joints", tuple(self.joints))
 
     @property
     def nested_key(self) -> str | tuple[str, ...]:
@@ -168,14 +205,14 @@ class TopicConfig:
         if isinstance(value, str):
             return cls(key=value)
         if not isinstance(value, Mapping):
-            raise ValueError(f"a topic entry must be a key name or a mapping, got {value!r}")
+            raise DataError(f"a topic entry must be a key name or a mapping, got {value!r}")
         unknown = set(value) - {"key", "field", "joints"}
         if unknown:
-            raise ValueError(
+            raise DataError(
                 f"unknown topic option(s) {sorted(unknown)}; allowed: key, field, joints"
             )
         if "key" not in value:
-            raise ValueError(f"topic entry {dict(value)} has no 'key'")
+            raise DataError(f"topic entry {dict(value)} has no 'key'")
         joints = value.get("joints")
         return cls(
             key=value["key"],
@@ -193,84 +230,266 @@ class TopicConfig:
 
 
 @dataclass(frozen=True)
+class VectorPart:
+    """One topic's share of a flat vector (``action: [...]``, ``observation: [...]``).
+
+    Attributes:
+        topic: the topic name.
+        field: for ``sensor_msgs/JointState`` only: ``"position"`` (default), ``"velocity"``
+            or ``"effort"``.
+        joints: for ``sensor_msgs/JointState`` only: the joints to keep, in this order.
+
+    Example:
+        >>> VectorPart.from_value({"topic": "/joint_states", "field": "velocity"}).field
+        'velocity'
+        >>> VectorPart.from_value("/cmd_pose")
+        VectorPart(topic='/cmd_pose', field=None, joints=None)
+    """
+
+    topic: str
+    field: str | None = None
+    joints: tuple[str, ...] | None = None
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.topic, str) or not self.topic:
+            raise DataError(f"a vector entry needs a topic name, got {self.topic!r}")
+        _check_joint_options(self.field, self.joints)
+        if self.joints is not None:
+            object.__setattr__(self, "joints", tuple(self.joints))
+
+    @classmethod
+    def from_value(cls, value: str | Mapping[str, Any] | VectorPart) -> VectorPart:
+        """Build from a topic name or a mapping ``{topic, field, joints}``."""
+        if isinstance(value, VectorPart):
+            return value
+        if isinstance(value, str):
+            return cls(topic=value)
+        if not isinstance(value, Mapping):
+            raise DataError(f"a vector entry must be a topic name or a mapping, got {value!r}")
+        unknown = set(value) - {"topic", "field", "joints"}
+        if unknown or "topic" not in value:
+            raise DataError(
+                f"vector entry {dict(value)}: allowed fields are topic (required), field, joints"
+            )
+        joints = value.get("joints")
+        return cls(topic=value["topic"], field=value.get("field"),
+                   joints=tuple(joints) if joints is not None else None)
+
+    def to_dict(self) -> str | dict[str, Any]:
+        if self.field is None and self.joints is None:
+            return self.topic
+        out: dict[str, Any] = {"topic": self.topic}
+        if self.field is not None:
+            out["field"] = self.field
+        if self.joints is not None:
+            out["joints"] = list(self.joints)
+        return out
+
+
+def _check_joint_options(field_: str | None, joints: Sequence[str] | None) -> None:
+    if field_ is not None and field_ not in _JOINT_FIELDS:
+        raise DataError(f"field must be one of {_JOINT_FIELDS}, got {field_!r}")
+    if joints is not None:
+        joints = tuple(joints)
+        if not joints or len(set(joints)) != len(joints):
+            raise DataError(f"joints must be distinct names, got {list(joints)}")
+
+
+#: The fields of a rosbag config file, in the order the README documents them.
+CONFIG_FIELDS = (
+    "rate_hz", "topics", "action", "action_manifold", "observation", "observation_manifold",
+    "time_reference", "segment", "max_gap_s", "on_gap",
+)
+ON_GAP = ("error", "split")
+
+
+def _parse_vectors(
+    data: Mapping[str, Any],
+) -> tuple[dict[str, tuple[VectorPart, ...]], dict[str, str]]:
+    """``action`` / ``observation`` (+ ``*_manifold``) -> vector key -> parts, key -> manifold."""
+    vectors: dict[str, tuple[VectorPart, ...]] = {}
+    manifolds: dict[str, str] = {}
+
+    def parts(name: str, value: Any) -> tuple[VectorPart, ...]:
+        if isinstance(value, str | Mapping) or not isinstance(value, Sequence) or not value:
+            raise DataError(f"{name} must be a non-empty list of topics, got {value!r}")
+        return tuple(VectorPart.from_value(v) for v in value)
+
+    if "action" in data:
+        vectors["action"] = parts("action", data["action"])
+    if "action_manifold" in data:
+        if "action" not in data:
+            raise DataError("action_manifold is given without action: [topics]")
+        manifolds["action"] = str(data["action_manifold"])
+    obs = data.get("observation")
+    obs_manifold = data.get("observation_manifold")
+    if isinstance(obs, Mapping):
+        if obs_manifold is not None and not isinstance(obs_manifold, Mapping):
+            raise DataError(
+                "observation is a mapping {name: [topics]}, so observation_manifold must be "
+                f"one too ({{name: 'R3 x S3'}}), got {obs_manifold!r}"
+            )
+        for name, value in obs.items():
+            vectors[f"observation/{name}"] = parts(f"observation/{name}", value)
+        for name, spec in dict(obs_manifold or {}).items():
+            if name not in obs:
+                raise DataError(f"observation_manifold names {name!r}, not one of {list(obs)}")
+            manifolds[f"observation/{name}"] = str(spec)
+    elif obs is not None:
+        vectors["observation"] = parts("observation", obs)
+        if obs_manifold is not None:
+            manifolds["observation"] = str(obs_manifold)
+    elif obs_manifold is not None:
+        raise DataError("observation_manifold is given without observation: [topics]")
+    for key, spec in manifolds.items():
+        try:
+            parse_manifold(spec)
+        except ValueError as err:
+            raise DataError(f"{key}: manifold {spec!r}: {err}") from err
+    return vectors, manifolds
+
+
+@dataclass(frozen=True)
 class RosbagConfig:
     """Which topics to read, as which keys, at which rate, and how to cut episodes.
 
     Attributes:
-        topics: topic name -> `TopicConfig`.
+        topics: topic name -> `TopicConfig` (one key per topic).
         rate_hz: the control rate of the episode grid (``read_rosbags(rate_hz=...)`` overrides
             it).
         time_reference: a key whose stream's first/last stamps bound each episode; default:
             the overlap of all streams.
         segment_topic: a ``std_msgs/Bool`` or ``std_msgs/String`` topic whose start/end markers
             cut a bag into episodes; default: one bag is one episode.
+        vectors: flat float32 keys built from several topics: ``"action"``,
+            ``"observation"`` or ``"observation/<name>"`` -> its `VectorPart` s, in order.
+        manifolds: vector key -> the manifold its flat layout must match (``"R3 x S3 x R1"``).
+        max_gap_s: the longest time a stream may go without a message (also at the start or
+            end of an episode); default: the larger of 0.5 s and 3 grid periods.
+        on_gap: ``"error"`` (default) or ``"split"``: what a longer gap does.
 
     Example:
         >>> cfg = RosbagConfig.from_dict({
         ...     "rate_hz": 10,
-        ...     "topics": {"/ee": {"key": "obs/ee_pose"}, "/cmd": "action"},
-        ...     "time_reference": "action",
+        ...     "topics": {"/ee": {"key": "obs/ee_pose"}, "/cmd": "command"},
+        ...     "action": ["/cmd_pose", "/gripper_cmd"],
+        ...     "action_manifold": "R3 x S3 x R1",
         ...     "segment": {"topic": "/episode_marker"},
         ... })
         >>> cfg.topics["/ee"].nested_key, cfg.rate_hz, cfg.segment_topic
         (('obs', 'ee_pose'), 10.0, '/episode_marker')
-        >>> RosbagConfig.from_dict({"topics": {"/a": "x"}, "rate": 10})
+        >>> [p.topic for p in cfg.vectors["action"]], cfg.gap_limit_s(10.0), cfg.on_gap
+        (['/cmd_pose', '/gripper_cmd'], 0.5, 'error')
+        >>> RosbagConfig.from_dict({"topics": {"/a": "x"}, "concat": {"action": ["/a"]}})
         Traceback (most recent call last):
         ...
-        ValueError: unknown rosbag config entry(s) ['rate']; allowed: rate_hz, segment, ...
+        rfmp_rl.data.episodes.DataError: unknown rosbag config field(s) ['concat']; allowed: ...
     """
 
-    topics: Mapping[str, TopicConfig]
+    topics: Mapping[str, TopicConfig] = field(default_factory=dict)
     rate_hz: float | None = None
     time_reference: str | None = None
     segment_topic: str | None = None
+    vectors: Mapping[str, Sequence[VectorPart]] = field(default_factory=dict)
+    manifolds: Mapping[str, str] = field(default_factory=dict)
+    max_gap_s: float | None = None
+    on_gap: str = "error"
 
     def __post_init__(self) -> None:
         topics = {str(t): TopicConfig.from_value(c) for t, c in dict(self.topics).items()}
         object.__setattr__(self, "topics", topics)
-        if not topics:
-            raise ValueError("rosbag config: no topics")
-        keys = [c.key for c in topics.values()]
+        vectors = {
+            str(k): tuple(VectorPart.from_value(p) for p in v)
+            for k, v in dict(self.vectors).items()
+        }
+        object.__setattr__(self, "vectors", vectors)
+        object.__setattr__(self, "manifolds", {str(k): str(v) for k, v in self.manifolds.items()})
+        if not topics and not vectors:
+            raise DataError("rosbag config: no topics (give topics, action or observation)")
+        unknown = set(self.manifolds) - set(vectors)
+        if unknown:
+            raise DataError(f"rosbag config: manifolds for unknown vector keys {sorted(unknown)}")
+        keys = [c.key for c in topics.values()] + list(vectors) + [TIMESTAMP]
         for i, key in enumerate(keys):
             for other in keys[i + 1 :]:
                 if key == other or other.startswith(key + "/") or key.startswith(other + "/"):
-                    raise ValueError(f"rosbag config: keys {key!r} and {other!r} collide")
+                    raise DataError(f"rosbag config: keys {key!r} and {other!r} collide")
+        self.read_options()  # a topic read for several keys must be read one way
         if self.rate_hz is not None:
             rate = float(self.rate_hz)
             if not (math.isfinite(rate) and rate > 0):
-                raise ValueError(f"rate_hz must be positive, got {self.rate_hz!r}")
+                raise DataError(f"rate_hz must be positive, got {self.rate_hz!r}")
             object.__setattr__(self, "rate_hz", rate)
-        if self.time_reference is not None and self.time_reference not in keys:
-            raise ValueError(
-                f"time_reference {self.time_reference!r} is not one of the keys {keys}"
+        if self.time_reference is not None and self.time_reference not in keys[:-1]:
+            raise DataError(
+                f"time_reference {self.time_reference!r} is not one of the keys {keys[:-1]}"
             )
-        if self.segment_topic is not None and self.segment_topic in topics:
-            raise ValueError(f"segment topic {self.segment_topic} is also a data topic")
+        if self.segment_topic is not None and self.segment_topic in self.read_options():
+            raise DataError(f"segment topic {self.segment_topic} is also a data topic")
+        if self.max_gap_s is not None:
+            gap = float(self.max_gap_s)
+            if not (math.isfinite(gap) and gap > 0):
+                raise DataError(f"max_gap_s must be a positive number of seconds, got "
+                                f"{self.max_gap_s!r}")
+            object.__setattr__(self, "max_gap_s", gap)
+        if self.on_gap not in ON_GAP:
+            raise DataError(f"on_gap must be one of {', '.join(ON_GAP)}, got {self.on_gap!r}")
+
+    def read_options(self) -> dict[str, TopicConfig]:
+        """Every topic read (data topics first, then vector parts) -> its reading options
+        (``key`` is the first key it feeds, for messages)."""
+        out: dict[str, TopicConfig] = dict(self.topics)
+        for key, parts in self.vectors.items():
+            for part in parts:
+                seen = out.get(part.topic)
+                if seen is None:
+                    out[part.topic] = TopicConfig(key=key, field=part.field, joints=part.joints)
+                    continue
+                field_ = part.field if part.field is not None else seen.field
+                joints = part.joints if part.joints is not None else seen.joints
+                if (seen.field is not None and field_ != seen.field) or (
+                    seen.joints is not None and joints != seen.joints
+                ):
+                    raise DataError(
+                        f"topic {part.topic} is read with field={seen.field}, "
+                        f"joints={seen.joints} for {seen.key} but field={part.field}, "
+                        f"joints={part.joints} for {key}; a topic is read one way"
+                    )
+                out[part.topic] = TopicConfig(key=seen.key, field=field_, joints=joints)
+        return out
+
+    def gap_limit_s(self, rate_hz: float) -> float:
+        """``max_gap_s``, or its default at this rate: max(0.5 s, 3 grid periods)."""
+        return self.max_gap_s if self.max_gap_s is not None else max(0.5, 3.0 / rate_hz)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> RosbagConfig:
         """Build from the mapping of a YAML file (see the module docstring)."""
-        allowed = {"rate_hz", "time_reference", "topics", "segment"}
-        unknown = set(data) - allowed
+        unknown = set(data) - set(CONFIG_FIELDS)
         if unknown:
-            raise ValueError(
-                f"unknown rosbag config entry(s) {sorted(unknown)}; "
-                f"allowed: {', '.join(sorted(allowed))}"
+            raise DataError(
+                f"unknown rosbag config field(s) {sorted(unknown)}; "
+                f"allowed: {', '.join(CONFIG_FIELDS)}"
             )
-        topics = data.get("topics")
+        topics = data.get("topics", {})
         if not isinstance(topics, Mapping):
-            raise ValueError("rosbag config needs 'topics': a mapping topic -> {key: ...}")
+            raise DataError("rosbag config 'topics' must be a mapping topic -> {key: ...}")
         segment = data.get("segment")
         segment_topic = None
         if segment is not None:
             if not isinstance(segment, Mapping) or set(segment) != {"topic"}:
-                raise ValueError(f"segment must be a mapping {{topic: /name}}, got {segment!r}")
+                raise DataError(f"segment must be a mapping {{topic: /name}}, got {segment!r}")
             segment_topic = str(segment["topic"])
+        vectors, manifolds = _parse_vectors(data)
         return cls(
             topics=dict(topics),
             rate_hz=data.get("rate_hz"),
             time_reference=data.get("time_reference"),
             segment_topic=segment_topic,
+            vectors=vectors,
+            manifolds=manifolds,
+            max_gap_s=data.get("max_gap_s"),
+            on_gap=data.get("on_gap", "error"),
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -278,15 +497,37 @@ class RosbagConfig:
             "rate_hz": self.rate_hz,
             "topics": {t: c.to_dict() for t, c in self.topics.items()},
         }
+        observation: dict[str, Any] = {}
+        for key, parts in self.vectors.items():
+            entries = [p.to_dict() for p in parts]
+            if key == "action":
+                out["action"] = entries
+            elif key == "observation":
+                out["observation"] = entries
+            else:
+                observation[key.removeprefix("observation/")] = entries
+        if observation:
+            out["observation"] = observation
+        for key, spec in self.manifolds.items():
+            if key in ("action", "observation"):
+                out[f"{key}_manifold"] = spec
+            else:
+                out.setdefault("observation_manifold", {})[key.removeprefix("observation/")] = spec
         if self.time_reference is not None:
             out["time_reference"] = self.time_reference
         if self.segment_topic is not None:
             out["segment"] = {"topic": self.segment_topic}
+        if self.max_gap_s is not None:
+            out["max_gap_s"] = self.max_gap_s
+        out["on_gap"] = self.on_gap
         return out
 
 
 def load_rosbag_config(path: str | os.PathLike[str]) -> RosbagConfig:
     """Read a `RosbagConfig` from a YAML file (the layout of the module docstring).
+
+    Raises:
+        DataError: an unreadable file or an invalid configuration, naming the file.
 
     Example:
         >>> import tempfile
@@ -298,13 +539,19 @@ def load_rosbag_config(path: str | os.PathLike[str]) -> RosbagConfig:
     """
     import yaml  # PyYAML, a dependency of hydra-core
 
-    with open(path, encoding="utf-8") as f:
-        data = yaml.safe_load(f)
+    try:
+        with open(path, encoding="utf-8") as f:
+            data = yaml.safe_load(f)
+    except (OSError, yaml.YAMLError) as err:
+        raise DataError(f"cannot read the rosbag config: {err}", file=str(path)) from err
     if not isinstance(data, Mapping):
-        raise ValueError(
-            f"{path}: a rosbag config must be a YAML mapping, got {type(data).__name__}"
+        raise DataError(
+            f"a rosbag config must be a YAML mapping, got {type(data).__name__}", file=str(path)
         )
-    return RosbagConfig.from_dict(data)
+    try:
+        return RosbagConfig.from_dict(data)
+    except ValueError as err:
+        raise DataError(str(err), file=str(path)) from err
 
 
 # --------------------------------------------------------------------------------------------
@@ -484,13 +731,10 @@ def _is_bag(path: Path) -> bool:
 
 
 def _expand(path: Path) -> list[Path]:
-    """A folder that is no bag itself but holds bags (``.bag`` files, rosbag2 folders) -> them."""
+    """A folder that is no bag itself but holds bags -> them, in name order: ``.bag`` files,
+    rosbag2 folders (with ``metadata.yaml``) and bare ``.db3`` / ``.mcap`` files, one bag each."""
     if path.is_dir() and not _is_bag(path):
-        if any(p.suffix in (".db3", ".mcap") for p in path.iterdir()):
-            return [path]  # a rosbag2 recording without metadata.yaml
-        bags = sorted(
-            p for p in path.iterdir() if p.suffix == ".bag" or (p.is_dir() and _is_bag(p))
-        )
+        bags = sorted(p for p in path.iterdir() if _is_bag(p))
         if bags:
             return bags
     return [path]
@@ -508,13 +752,9 @@ def _resolve(path: Path) -> tuple[str, list[Path]]:
             return "ros2", [path]
     elif (path / "metadata.yaml").exists():
         return "ros2", [path]
-    else:
-        storage = sorted(p for p in path.iterdir() if p.suffix in (".db3", ".mcap"))
-        if storage:
-            return "ros2", storage
     raise DataError(
-        "not a ROS bag: expected a .bag file (ROS 1), or a folder with metadata.yaml or "
-        ".db3/.mcap files, or a .db3/.mcap file (ROS 2)",
+        "not a ROS bag: expected a .bag file (ROS 1), a rosbag2 folder with metadata.yaml or a "
+        ".db3/.mcap file (ROS 2), or a folder holding such bags",
         file=file,
     )
 
@@ -554,7 +794,9 @@ def _guarded(messages: Iterable[Any], file: str) -> Iterator[Any]:
 
 def _connections(reader: Any, cfg: RosbagConfig, file: str) -> list[Any]:
     """The connections of the configured topics; checks that each exists with a usable type."""
-    wanted = list(cfg.topics) + ([cfg.segment_topic] if cfg.segment_topic else [])
+    options = cfg.read_options()
+    in_vectors = {p.topic: key for key, parts in cfg.vectors.items() for p in parts}
+    wanted = list(options) + ([cfg.segment_topic] if cfg.segment_topic else [])
     by_topic: dict[str, list[Any]] = {}
     for conn in reader.connections:
         by_topic.setdefault(conn.topic, []).append(conn)
@@ -564,7 +806,7 @@ def _connections(reader: Any, cfg: RosbagConfig, file: str) -> list[Any]:
             raise DataError(
                 f"topic not in the bag; available topics: {available}", file=file, topic=topic
             )
-        spec = cfg.topics.get(topic)
+        spec = options.get(topic)
         for conn in by_topic[topic]:
             msgtype = _normalize_type(conn.msgtype)
             supported = _MARKER_TYPES if spec is None else tuple(_KINDS)
@@ -574,6 +816,12 @@ def _connections(reader: Any, cfg: RosbagConfig, file: str) -> list[Any]:
                     f"unsupported message type {msgtype} for {role}; supported: "
                     f"{', '.join(supported)}",
                     file=file, topic=topic, key=None if spec is None else spec.key,
+                )
+            if topic in in_vectors and _KINDS[msgtype] in ("image", "compressed"):
+                raise DataError(
+                    f"an image ({msgtype}) cannot be part of the flat vector "
+                    f"{in_vectors[topic]}; map it to a key under topics",
+                    file=file, topic=topic, key=in_vectors[topic],
                 )
             if spec is not None and (spec.field or spec.joints) and msgtype != _JOINT_STATE:
                 raise DataError(
@@ -681,7 +929,7 @@ def _read_marker(stream: _Stream, msg: Any, msgtype: str, index: int, file: str)
 def _pass1(reader: Any, cfg: RosbagConfig, file: str) -> dict[str, _Stream]:
     """Read every configured topic: times and values (for images: only their shapes)."""
     conns = _connections(reader, cfg, file)
-    streams = {t: _Stream(topic=t, spec=s) for t, s in cfg.topics.items()}
+    streams = {t: _Stream(topic=t, spec=s) for t, s in cfg.read_options().items()}
     if cfg.segment_topic:
         streams[cfg.segment_topic] = _Stream(topic=cfg.segment_topic, spec=None, kind="marker")
     for conn, recorded, raw in _guarded(reader.messages(connections=conns), file):
@@ -774,19 +1022,19 @@ class _Plan:
     span: tuple[int, int]
 
 
-def _plan(
-    streams: dict[str, _Stream],
-    cfg: RosbagConfig,
-    window: tuple[int, int] | None,
-    rate: float,
-    file: str,
-    name: str,
-) -> _Plan:
-    data = {t: s for t, s in streams.items() if s.spec is not None}
-    chosen: dict[str, np.ndarray] = {}  # topic -> positions in the stream's lists, by time
-    stamps: dict[str, np.ndarray] = {}
-    for topic, s in data.items():
-        key = s.spec.key if s.spec else None
+#: Per data topic: the positions (in the stream's lists) of the messages an episode uses,
+#: ordered by time with one message per time, and their times in nanoseconds.
+_Selection = dict[str, tuple[np.ndarray, np.ndarray]]
+
+
+def _select(
+    streams: dict[str, _Stream], window: tuple[int, int] | None, file: str, name: str
+) -> _Selection:
+    selection: _Selection = {}
+    for topic, s in streams.items():
+        if s.spec is None:
+            continue
+        key = s.spec.key
         st, ordinals = s.arrays()
         pos = np.arange(st.size) if window is None else np.flatnonzero(
             (st >= window[0]) & (st <= window[1])
@@ -813,45 +1061,199 @@ def _plan(
                 )
         pos = pos[np.argsort(st[pos], kind="stable")]
         keep = np.append(st[pos][1:] != st[pos][:-1], True)  # equal times: the last recorded
-        chosen[topic], stamps[topic] = pos[keep], st[pos[keep]]
+        selection[topic] = (pos[keep], st[pos[keep]])
+    return selection
 
+
+def _reference_topics(cfg: RosbagConfig) -> list[str]:
+    ref = cfg.time_reference
+    if ref in cfg.vectors:
+        return [p.topic for p in cfg.vectors[ref]]
+    return [t for t, c in cfg.topics.items() if c.key == ref]
+
+
+def _bounds(
+    selection: _Selection, streams: dict[str, _Stream], cfg: RosbagConfig, file: str, name: str
+) -> tuple[int, int]:
+    """The episode's first and last grid time (ns): the time reference's span, or the overlap
+    of all streams; `DataError` when it is empty."""
+    stamps = {t: st for t, (_, st) in selection.items()}
     if cfg.time_reference is not None:
-        ref = next(t for t, s in data.items() if s.spec and s.spec.key == cfg.time_reference)
-        t0, t1 = int(stamps[ref][0]), int(stamps[ref][-1])
+        refs = _reference_topics(cfg)
+        t0 = max(int(stamps[t][0]) for t in refs)
+        t1 = min(int(stamps[t][-1]) for t in refs)
+        ref = ", ".join(refs)
         for topic, st in stamps.items():
             if st[-1] < t0 or st[0] > t1:
                 raise DataError(
                     f"no time overlap: messages span {_seconds(st[0])} to {_seconds(st[-1])}, "
                     f"the time reference {ref} spans {_seconds(t0)} to {_seconds(t1)} "
                     "(empty episode)",
-                    file=file, topic=topic, key=data[topic].spec.key, episode=name,
+                    file=file, topic=topic, key=streams[topic].spec.key, episode=name,
                 )
-    else:
-        late = max(stamps, key=lambda t: stamps[t][0])
-        early = min(stamps, key=lambda t: stamps[t][-1])
-        t0, t1 = int(stamps[late][0]), int(stamps[early][-1])
-        if t1 < t0:
-            raise DataError(
-                f"no time overlap: the first message is at {_seconds(t0)}, after the last "
-                f"message of {early} at {_seconds(t1)} (empty episode)",
-                file=file, topic=late, key=data[late].spec.key, episode=name,
-            )
+        return t0, t1
+    late = max(stamps, key=lambda t: stamps[t][0])
+    early = min(stamps, key=lambda t: stamps[t][-1])
+    t0, t1 = int(stamps[late][0]), int(stamps[early][-1])
+    if t1 < t0:
+        raise DataError(
+            f"no time overlap: the first message is at {_seconds(t0)}, after the last "
+            f"message of {early} at {_seconds(t1)} (empty episode)",
+            file=file, topic=late, key=streams[late].spec.key, episode=name,
+        )
+    return t0, t1
 
+
+@dataclass(frozen=True)
+class _Gap:
+    topic: str
+    start: int  # ns
+    end: int  # ns
+    kind: str  # "gap", "late start", "early end"
+
+
+def _find_gaps(
+    selection: _Selection, span: tuple[int, int], limit_ns: int
+) -> list[_Gap]:
+    """Every stretch of ``span`` longer than ``limit_ns`` in which a stream has no message."""
+    a, b = span
+    gaps: list[_Gap] = []
+    for topic, (_, st) in selection.items():
+        lo = np.concatenate([[a], st]).astype(np.int64)
+        hi = np.concatenate([st, [b]]).astype(np.int64)
+        start, end = np.maximum(lo, a), np.minimum(hi, b)
+        for i in np.flatnonzero(end - start > limit_ns):
+            kind = "late start" if i == 0 else "early end" if i == st.size else "gap"
+            gaps.append(_Gap(topic, int(start[i]), int(end[i]), kind))
+    return sorted(gaps, key=lambda g: (g.start, g.topic))
+
+
+def _pieces(span: tuple[int, int], gaps: list[_Gap]) -> list[tuple[int, int]]:
+    """The parts of ``span`` outside every gap (a gap's ends are messages, so they belong to the
+    parts around it)."""
+    pieces, cursor = [], span[0]
+    for gap in gaps:
+        if gap.start > cursor:
+            pieces.append((cursor, gap.start))
+        cursor = max(cursor, gap.end)
+    if span[1] > cursor:
+        pieces.append((cursor, span[1]))
+    return pieces
+
+
+def _gap_entry(gap: _Gap, origin: int, file: str, name: str) -> dict[str, Any]:
+    return {
+        "file": file, "episode": name, "topic": gap.topic, "kind": gap.kind,
+        "start_s": round((gap.start - origin) / 1e9, 6),
+        "end_s": round((gap.end - origin) / 1e9, 6),
+        "length_s": round((gap.end - gap.start) / 1e9, 6),
+    }
+
+
+def _gap_error(
+    gaps: list[_Gap], origin: int, limit: float, streams: dict[str, _Stream], file: str,
+    name: str,
+) -> DataError:
+    gap = gaps[0]
+    what = {"gap": "gap", "late start": "the stream starts late",
+            "early end": "the stream ends early"}[gap.kind]
+    more = f"; {len(gaps) - 1} more gap(s) in this episode" if len(gaps) > 1 else ""
+    return DataError(
+        f"{what}: no message for {(gap.end - gap.start) / 1e9:.3f} s, from "
+        f"{(gap.start - origin) / 1e9:.3f} s to {(gap.end - origin) / 1e9:.3f} s into the "
+        f"recording (stamps {_seconds(gap.start)} to {_seconds(gap.end)}), longer than "
+        f"max_gap_s = {limit:g} s{more}. Set on_gap: split to cut the episode at gaps, or raise "
+        "max_gap_s",
+        file=file, topic=gap.topic, key=streams[gap.topic].spec.key, episode=name,
+    )
+
+
+def _layout(kind: str, width: int | None) -> list[tuple[str, int]]:
+    """A stream's share of a flat vector as ``(factor, coordinates)`` pieces."""
+    if kind == "pose":
+        return [("R", 3), ("S", 4)]
+    return [("R", 1 if kind == "bool" else int(width or 0))]
+
+
+def _merged(layout: Sequence[tuple[str, int]]) -> list[tuple[str, int]]:
+    out: list[tuple[str, int]] = []
+    for factor, n in layout:
+        if out and factor == "R" and out[-1][0] == "R":
+            out[-1] = ("R", out[-1][1] + n)
+        else:
+            out.append((factor, n))
+    return out
+
+
+def _layout_text(layout: Sequence[tuple[str, int]]) -> str:
+    return " x ".join(f"{f}{n if f == 'R' else n - 1}" for f, n in _merged(layout))
+
+
+def _vector_layouts(
+    streams: dict[str, _Stream], cfg: RosbagConfig, file: str
+) -> dict[str, list[dict[str, Any]]]:
+    """Each flat vector's columns per topic; checks them against the declared manifolds."""
+    out: dict[str, list[dict[str, Any]]] = {}
+    for key, parts in cfg.vectors.items():
+        columns, start, layout = [], 0, []
+        for part in parts:
+            s = streams[part.topic]
+            share = _layout(s.kind, s.width)
+            size = sum(n for _, n in share)
+            columns.append({"topic": part.topic, "kind": s.kind, "start": start, "size": size})
+            start += size
+            layout += share
+        spec = cfg.manifolds.get(key)
+        if spec is not None:
+            manifold = parse_manifold(spec)
+            factors = manifold.components if isinstance(manifold, Product) else [manifold]
+            expected = [("R", c.dim) if isinstance(c, Euclidean) else ("S", c.dim)
+                        for c in factors if isinstance(c, Euclidean | Sphere)]
+            if _merged(expected) != _merged(layout):
+                shares = ", ".join(
+                    f"{p.topic}: "
+                    f"{_layout_text(_layout(streams[p.topic].kind, streams[p.topic].width))}"
+                    for p in parts
+                )
+                raise DataError(
+                    f"the topics give the flat layout {_layout_text(layout)} ({shares}), which "
+                    f"does not match {key}_manifold {spec!r}; orientations are S3 (xyzw), "
+                    "every other value is R",
+                    file=file, key=key,
+                )
+        out[key] = columns
+    return out
+
+
+def _nested(key: str) -> str | tuple[str, ...]:
+    parts = tuple(key.split("/"))
+    return parts[0] if len(parts) == 1 else parts
+
+
+def _resample(
+    streams: dict[str, _Stream],
+    selection: _Selection,
+    cfg: RosbagConfig,
+    bounds: tuple[int, int],
+    rate: float,
+    file: str,
+    name: str,
+) -> _Plan:
+    t0, t1 = bounds
     steps = int(math.floor((t1 - t0) * rate / 1e9 + 1e-9)) + 1
     grid = torch.arange(steps, dtype=torch.float64) / rate
-    arrays: dict[Any, torch.Tensor] = {}
+    values: dict[str, torch.Tensor] = {}  # topic -> (T, D) float64, or bool (T, 1)
     frames: dict[str, np.ndarray] = {}
-    for topic, s in data.items():
+    for topic, (pos, stamps) in selection.items():
+        s = streams[topic]
         assert s.spec is not None
-        pos = chosen[topic]
-        times = torch.from_numpy((stamps[topic] - t0).astype(np.float64) / 1e9)
-        key = s.spec.nested_key
+        times = torch.from_numpy((stamps - t0).astype(np.float64) / 1e9)
         if s.kind == "vector":
-            values = torch.from_numpy(np.stack([s.values[p] for p in pos]))
-            arrays[key] = resample_linear(times, values, grid).to(torch.float32)
+            values[topic] = resample_linear(times, torch.from_numpy(np.stack(
+                [s.values[p] for p in pos])), grid)
         elif s.kind == "pose":
-            values = torch.from_numpy(np.stack([s.values[p] for p in pos]))
-            quats = values[:, 3:]
+            raw = torch.from_numpy(np.stack([s.values[p] for p in pos]))
+            quats = raw[:, 3:]
             norms = quats.norm(dim=-1)
             bad = (norms - 1).abs() > 1e-2
             if bool(bad.any()):
@@ -862,23 +1264,79 @@ def _plan(
                     "quaternion",
                     file=file, topic=topic, key=s.spec.key, episode=name, step=index,
                 )
-            quats = quats / norms[:, None]
-            parts = key if isinstance(key, tuple) else (key,)
-            arrays[(*parts, "position")] = resample_linear(times, values[:, :3], grid).to(
-                torch.float32
-            )
-            arrays[(*parts, "orientation")] = resample_slerp(times, quats, grid).to(
-                torch.float32
-            )
+            quats = resample_slerp(times, quats / norms[:, None], grid)
+            quats = torch.where(quats[:1, 3:] < 0, -quats, quats)  # w >= 0 at the first step
+            values[topic] = torch.cat([resample_linear(times, raw[:, :3], grid), quats], dim=-1)
         else:
             nearest = nearest_indices(times, grid).numpy()
             if s.kind == "bool":
                 flags = np.array([s.values[p] for p in pos], dtype=bool)
-                arrays[key] = torch.from_numpy(flags[nearest][:, None].copy())
+                values[topic] = torch.from_numpy(flags[nearest][:, None].copy())
             else:
                 frames[topic] = np.asarray(s.ordinals, np.int64)[pos][nearest]
+    arrays: dict[Any, torch.Tensor] = {TIMESTAMP: grid}
+    for topic, spec in cfg.topics.items():
+        if topic in frames:
+            continue
+        key = spec.nested_key
+        if streams[topic].kind == "pose":
+            parts = key if isinstance(key, tuple) else (key,)
+            arrays[(*parts, "position")] = values[topic][:, :3].to(torch.float32)
+            arrays[(*parts, "orientation")] = values[topic][:, 3:].to(torch.float32)
+        elif streams[topic].kind == "bool":
+            arrays[key] = values[topic]
+        else:
+            arrays[key] = values[topic].to(torch.float32)
+    for key, parts in cfg.vectors.items():
+        columns = [values[p.topic].to(torch.float64) for p in parts]
+        arrays[_nested(key)] = torch.cat(columns, dim=-1).to(torch.float32)
     span = (t0, t0 + round((steps - 1) * 1e9 / rate))
     return _Plan(name=name, arrays=arrays, frames=frames, span=span)
+
+
+def _plans(
+    streams: dict[str, _Stream],
+    cfg: RosbagConfig,
+    window: tuple[int, int] | None,
+    rate: float,
+    file: str,
+    name: str,
+    manifest: Manifest,
+) -> list[_Plan]:
+    """One marker window (or the whole bag) -> its episode, or its parts between gaps."""
+    selection = _select(streams, window, file, name)
+    bounds = _bounds(selection, streams, cfg, file, name)
+    if cfg.time_reference is not None:
+        span = bounds
+    else:
+        span = (min(int(st[0]) for _, st in selection.values()),
+                max(int(st[-1]) for _, st in selection.values()))
+    limit = cfg.gap_limit_s(rate)
+    gaps = _find_gaps(selection, span, round(limit * 1e9))
+    if not gaps:
+        return [_resample(streams, selection, cfg, bounds, rate, file, name)]
+    if cfg.on_gap == "error":
+        raise _gap_error(gaps, span[0], limit, streams, file, name)
+    manifest.gaps += [_gap_entry(g, span[0], file, name) for g in gaps]
+    plans = []
+    for k, (a, b) in enumerate(_pieces(span, gaps)):
+        part = f"{name}~{k}"
+        piece = {t: (pos[(st >= a) & (st <= b)], st[(st >= a) & (st <= b)])
+                 for t, (pos, st) in selection.items()}
+        empty = [t for t, (pos, _) in piece.items() if pos.size == 0]
+        try:
+            if empty:
+                raise DataError(f"no messages of {', '.join(empty)} in this part")
+            bounds = _bounds(piece, streams, cfg, file, part)
+        except DataError as err:  # a sliver between two gaps: listed, not returned
+            manifest.skipped.append({
+                "file": file, "episode": part,
+                "reason": f"{(a - span[0]) / 1e9:.3f} s to {(b - span[0]) / 1e9:.3f} s between "
+                          f"gaps, too short for an episode ({err})",
+            })
+            continue
+        plans.append(_resample(streams, piece, cfg, bounds, rate, file, part))
+    return plans
 
 
 def _decode(stream: _Stream, msg: Any, index: int, file: str) -> np.ndarray:
@@ -957,30 +1415,59 @@ def _pass2(
             plan.arrays[spec.nested_key] = torch.from_numpy(np.stack(images))
 
 
+def _read_bag(
+    bag: Path, fmt: str, files: list[Path], cfg: RosbagConfig, rate: float, manifest: Manifest
+) -> tuple[dict[str, _Stream], list[_Plan], dict[str, list[dict[str, Any]]]]:
+    """One bag -> its streams, its episode plans (images decoded) and its vectors' columns."""
+    file = str(bag)
+    with _open_bag(files, fmt, file) as reader:
+        streams = _pass1(reader, cfg, file)
+        layouts = _vector_layouts(streams, cfg, file)
+        if cfg.segment_topic:
+            windows: list[tuple[int, int] | None] = list(
+                _windows(streams[cfg.segment_topic], file)
+            )
+        else:
+            windows = [None]
+        plans = [
+            plan
+            for i, window in enumerate(windows)
+            for plan in _plans(streams, cfg, window, rate, file,
+                               bag.name if window is None else f"{bag.name}#{i}", manifest)
+        ]
+        _pass2(reader, cfg, streams, plans, file)
+    return streams, plans, layouts
+
+
 def read_rosbags(
     paths: str | os.PathLike[str] | Sequence[str | os.PathLike[str]],
     config: RosbagConfig | Mapping[str, Any],
     *,
     rate_hz: float | None = None,
+    skip_bad: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read ROS 1 / ROS 2 bags into episodes resampled to one control rate.
 
-    See the module docstring for the configuration, timing, resampling, keys and dtypes.
+    See the module docstring for the configuration, timing, gaps, resampling, keys and dtypes.
 
     Args:
-        paths: one bag or a list of bags: ``.bag`` files (ROS 1), rosbag2 folders, or bare
-            ``.db3`` / ``.mcap`` files. A folder that is not a bag but holds ``.bag`` files or
-            rosbag2 folders stands for those bags, in name order.
+        paths: one bag or a list of bags: ``.bag`` files (ROS 1), rosbag2 folders (with
+            ``metadata.yaml``), or bare ``.db3`` / ``.mcap`` files. A folder that is not a bag
+            but holds bags of these kinds stands for them, in name order, one bag each.
         config: a `RosbagConfig` or the mapping to build one from.
         rate_hz: the control rate; overrides ``config.rate_hz``.
+        skip_bad: skip a bag that raises `DataError` (corrupt, a missing topic, a gap with
+            ``on_gap: error``, ...) and list it in ``manifest.skipped`` instead of raising.
 
     Returns:
         The episodes (``TensorDict`` of batch ``[T]``), in bag order and, within a bag, in
-        marker order; and the `rfmp_rl.data.episodes.Manifest` (format ``"ros1"`` or ``"ros2"``).
+        marker and time order; and the `rfmp_rl.data.episodes.Manifest` (format ``"ros1"`` or
+        ``"ros2"``), with ``gaps`` and ``skipped`` filled in.
 
     Raises:
         DataError: a missing or unreadable bag, a missing topic, an unsupported message type or
-            image encoding, NaN/inf values, an empty episode (see the module docstring).
+            image encoding, NaN/inf values, an empty episode, a gap (see the module docstring);
+            with ``skip_bad`` only when no bag could be read.
         ValueError: an invalid configuration or no rate.
 
     Example:
@@ -1010,7 +1497,7 @@ def read_rosbags(
         except ValueError:
             source = str(bags[0].absolute().parent)
     topics: dict[str, dict[str, Any]] = {
-        t: {"key": s.key, "msgtypes": [], "messages": 0} for t, s in cfg.topics.items()
+        t: {"key": s.key, "msgtypes": [], "messages": 0} for t, s in cfg.read_options().items()
     }
     if cfg.segment_topic:
         topics[cfg.segment_topic] = {"key": None, "msgtypes": [], "messages": 0}
@@ -1019,34 +1506,44 @@ def read_rosbags(
         format="+".join(formats),
         rate_hz=rate,
         extra={"files": [str(b) for b in bags], "config": cfg.to_dict(), "topics": topics,
-               "episode_spans_ns": []},
+               "max_gap_s": cfg.gap_limit_s(rate), "episode_spans_ns": []},
     )
+    if cfg.vectors:
+        manifest.extra["vectors"] = {}
     episodes: list[TensorDict] = []
     for bag, fmt, files in resolved:
         file = str(bag)
-        with _open_bag(files, fmt, file) as reader:
-            streams = _pass1(reader, cfg, file)
-            if cfg.segment_topic:
-                windows: list[tuple[int, int] | None] = list(
-                    _windows(streams[cfg.segment_topic], file)
-                )
-            else:
-                windows = [None]
-            plans = [
-                _plan(streams, cfg, window, rate, file,
-                      bag.name if window is None else f"{bag.name}#{i}")
-                for i, window in enumerate(windows)
-            ]
-            _pass2(reader, cfg, streams, plans, file)
+        # A bag's gaps and episodes enter the manifest only once the whole bag is read.
+        trial = Manifest(source=source, format=manifest.format, keys=dict(manifest.keys))
+        try:
+            streams, plans, layouts = _read_bag(bag, fmt, files, cfg, rate, trial)
+            if not plans:
+                raise DataError("no episode left between the gaps", file=file)
+            built = []
+            for plan in plans:
+                episode = make_episode(plan.arrays, file=file, episode=plan.name)
+                trial.add(episode, plan.name)
+                built.append((plan, episode))
+        except DataError as err:
+            if not skip_bad:
+                raise
+            manifest.skipped.append({"file": file, "reason": str(err)})
+            continue
+        manifest.gaps += trial.gaps
+        manifest.skipped += trial.skipped
+        for key, columns in layouts.items():
+            manifest.extra["vectors"].setdefault(key, columns)
         for topic, stream in streams.items():
             info = topics[topic]
             info["messages"] += stream.count
             info["msgtypes"] += [m for m in stream.msgtypes if m not in info["msgtypes"]]
             if stream.spec is not None and stream.spec.joints is not None:
                 info["skipped"] = info.get("skipped", 0) + stream.skipped
-        for plan in plans:
-            episode = make_episode(plan.arrays, file=file, episode=plan.name)
+        for plan, episode in built:
             manifest.add(episode, plan.name)
             manifest.extra["episode_spans_ns"].append(list(plan.span))
             episodes.append(episode)
+    if not episodes:
+        listed = "; ".join(f"{s['file']}: {s['reason']}" for s in manifest.skipped)
+        raise DataError(f"no readable bag among {len(bags)}: {listed}", file=source)
     return episodes, manifest
