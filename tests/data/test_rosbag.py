@@ -21,6 +21,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from rfmp_rl.data.episodes import DataError  # noqa: E402
 from rfmp_rl.data.rosbag import (  # noqa: E402
+    CONFIG_FIELDS,
     RosbagConfig,
     TopicConfig,
     load_rosbag_config,
@@ -1039,3 +1040,16 @@ def test_unknown_or_conflicting_vector_config_is_refused(tmp_path):
             RosbagConfig.from_dict(data)
     cfg = RosbagConfig.from_dict({"action": ["/j"], "time_reference": "action"})
     assert cfg.read_options()["/j"].key == "action"
+
+
+def test_readme_topic_config_is_a_valid_config():
+    import yaml
+
+    readme = Path(__file__).resolve().parents[2] / "README.md"
+    section = readme.read_text().split("### ROS bags: the topic config", 1)[1]
+    block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
+    data = yaml.safe_load(block)
+    assert set(data) == set(CONFIG_FIELDS)  # the README shows every field
+    cfg = RosbagConfig.from_dict(data)
+    assert [p.topic for p in cfg.vectors["action"]] == ["/cmd_pose", "/gripper_cmd"]
+    assert cfg.manifolds == {"action": "R3 x S3 x R1", "observation/state": "R3 x S3 x R1"}
