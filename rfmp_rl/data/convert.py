@@ -31,7 +31,7 @@ FORMATS = ("dp_zarr", "robomimic", "ros", "lasa")
 ROS_HELP = """ROS bags: --config names a YAML file that maps topics to keys and sets the control
 rate, flat action/observation vectors, and what a gap in a stream does (max_gap_s, on_gap). Every
 field is described in README.md, section "ROS bags: the topic config", and in the docstring of
-rfmp_rl.data.rosbag. --skip-bad skips unreadable bags and lists them at the end and in the
+rfmp_rl.data.ros. --skip-bad skips unreadable bags and lists them at the end and in the
 manifest; without it the first unreadable bag stops the conversion."""
 
 
@@ -62,7 +62,7 @@ def read_source(
 
         return read_robomimic(source, obs_keys=keys, filter_key=filter_key)
     if fmt == "ros":
-        from rfmp_rl.data.rosbag import load_rosbag_config, read_rosbags
+        from rfmp_rl.data.ros import load_rosbag_config, read_rosbags
 
         if config is None:
             raise ValueError("ros: --config topics.yaml is required (it maps topics to keys)")

@@ -1053,3 +1053,12 @@ def test_readme_topic_config_is_a_valid_config():
     cfg = RosbagConfig.from_dict(data)
     assert [p.topic for p in cfg.vectors["action"]] == ["/cmd_pose", "/gripper_cmd"]
     assert cfg.manifolds == {"action": "R3 x S3 x R1", "observation/state": "R3 x S3 x R1"}
+
+
+def test_rosbag_module_re_exports_the_ros_package():
+    import rfmp_rl.data.ros as ros
+    import rfmp_rl.data.rosbag as rosbag
+
+    for name in rosbag.__all__:
+        assert getattr(rosbag, name) is getattr(ros, name), name
+    assert set(rosbag.__all__) == set(ros.__all__)
