@@ -132,7 +132,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--out", type=Path, default=None, help="markdown file to write")
     args = parser.parse_args()
+    load_before = os.getloadavg()[0]
     rows = [measure(fmt, args.seconds, args.repeats) for fmt in args.formats.split(",")]
+    load_after = os.getloadavg()[0]
     python = os.path.relpath(sys.executable, Path.cwd())
     command = shlex.join([python, *sys.argv])
     threads = os.environ.get("OMP_NUM_THREADS")
@@ -148,7 +150,8 @@ def main() -> None:
         "R3 x S3 x R1, decoded images, written to disk); median of "
         f"{args.repeats} runs in one process ({platform.machine()}, Python "
         f"{platform.python_version()}, OMP_NUM_THREADS={threads or 'unset'}), on the 2-core "
-        "development machine shared with other jobs.",
+        f"development machine shared with other jobs (1-minute load average {load_before:.1f} "
+        f"before, {load_after:.1f} after: with a load above 2 the figures are lower bounds).",
         "",
         "| format | messages | episode steps | wall time s | messages/s |",
         "|---|---|---|---|---|",
