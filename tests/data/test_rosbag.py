@@ -873,10 +873,11 @@ def test_gaps_split_episodes_when_configured_and_the_manifest_lists_them(fmt, tm
 def test_gap_config_validation():
     for data, match in [
         ({"max_gap_s": 0}, "max_gap_s must be a positive"),
-        ({"max_gap_s": "soon"}, "could not convert|max_gap_s"),
+        ({"max_gap_s": "soon"}, "max_gap_s must be a positive number of seconds, got 'soon'"),
+        ({"rate_hz": "fast"}, "rate_hz must be positive, got 'fast'"),
         ({"on_gap": "hold"}, "on_gap must be one of error, split"),
     ]:
-        with pytest.raises(ValueError, match=match):
+        with pytest.raises(DataError, match=match):
             RosbagConfig.from_dict({"topics": {"/a": "a"}, **data})
     cfg = RosbagConfig.from_dict({"topics": {"/a": "a"}})
     assert cfg.gap_limit_s(100.0) == 0.5 and cfg.gap_limit_s(2.0) == 1.5

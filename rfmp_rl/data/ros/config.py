@@ -157,6 +157,14 @@ def _check_joint_options(field_: str | None, joints: Sequence[str] | None) -> No
             raise DataError(f"joints must be distinct names, got {list(joints)}")
 
 
+def _number(value: Any) -> float:
+    """A config number as a float; NaN for what is not one (so the caller's check names it)."""
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return math.nan
+
+
 #: The fields of a rosbag config file, in the order the README documents them.
 CONFIG_FIELDS = (
     "rate_hz", "topics", "action", "action_manifold", "observation", "observation_manifold",
@@ -278,7 +286,7 @@ class RosbagConfig:
                     raise DataError(f"rosbag config: keys {key!r} and {other!r} collide")
         self.read_options()  # a topic read for several keys must be read one way
         if self.rate_hz is not None:
-            rate = float(self.rate_hz)
+            rate = _number(self.rate_hz)
             if not (math.isfinite(rate) and rate > 0):
                 raise DataError(f"rate_hz must be positive, got {self.rate_hz!r}")
             object.__setattr__(self, "rate_hz", rate)
@@ -289,7 +297,7 @@ class RosbagConfig:
         if self.segment_topic is not None and self.segment_topic in self.read_options():
             raise DataError(f"segment topic {self.segment_topic} is also a data topic")
         if self.max_gap_s is not None:
-            gap = float(self.max_gap_s)
+            gap = _number(self.max_gap_s)
             if not (math.isfinite(gap) and gap > 0):
                 raise DataError(f"max_gap_s must be a positive number of seconds, got "
                                 f"{self.max_gap_s!r}")
