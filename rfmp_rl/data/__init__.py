@@ -13,7 +13,7 @@ from rfmp_rl.data.lasa import (
 from rfmp_rl.data.lerobot import read_lerobot
 from rfmp_rl.data.minari import read_minari
 from rfmp_rl.data.robomimic import read_robomimic, write_robomimic
-from rfmp_rl.data.rosbag import RosbagConfig, TopicConfig, load_rosbag_config, read_rosbags
+from rfmp_rl.data.ros import RosbagConfig, TopicConfig, load_rosbag_config, read_rosbags
 from rfmp_rl.data.slices import SlicesToChunks
 from rfmp_rl.data.store import (
     ContextChunk,

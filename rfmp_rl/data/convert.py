@@ -5,7 +5,7 @@ Usage::
     python -m rfmp_rl.data.convert dp_zarr ../shared/data/pusht/pusht_cchi_v7_replay.zarr \\
         --out data/pusht_store
     python -m rfmp_rl.data.convert robomimic lift_ph.hdf5 --out data/lift --filter train
-    python -m rfmp_rl.data.convert ros bags/ --config topics.yaml --out data/teleop
+    python -m rfmp_rl.data.convert ros bags/ --config topics.yaml --out data/teleop --skip-bad
     python -m rfmp_rl.data.convert lasa LShape,Sine --out data/lasa
     python -m rfmp_rl.data.convert lerobot ~/datasets/pusht --out data/pusht_lerobot \\
         --episodes 0,1,2 --keys observation.state,observation.image=obs/cam
@@ -32,6 +32,12 @@ __all__ = ["read_source", "main"]
 
 FORMATS = ("dp_zarr", "robomimic", "ros", "lasa", "lerobot", "minari")
 
+ROS_HELP = """ROS bags: --config names a YAML file that maps topics to keys and sets the control
+rate, flat action/observation vectors, and what a gap in a stream does (max_gap_s, on_gap). Every
+field is described in README.md, section "ROS bags: the topic config", and in the docstring of
+rfmp_rl.data.ros. --skip-bad skips unreadable bags and lists them at the end and in the
+manifest; without it the first unreadable bag stops the conversion."""
+
 
 def read_source(
     fmt: str,
@@ -42,10 +48,13 @@ def read_source(
     config: str | None = None,
     episodes: list[int] | None = None,
     rate_hz: float | None = None,
+    skip_bad: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Dispatch to the reader of ``fmt`` (one of `FORMATS`). ``episodes`` selects episodes by
     the source's index (``lerobot``, ``minari``); ``rate_hz`` is the control rate of a source
     that records none (``minari``, ``dp_zarr``).
+
+    ``skip_bad`` (ROS only) skips unreadable bags and lists them in ``manifest.skipped``.
 
     Example:
         >>> eps, manifest = read_source("lasa", "LShape")
@@ -66,12 +75,12 @@ def read_source(
 
         return read_robomimic(source, obs_keys=keys, filter_key=filter_key)
     if fmt == "ros":
-        from rfmp_rl.data.rosbag import load_rosbag_config, read_rosbags
+        from rfmp_rl.data.ros import load_rosbag_config, read_rosbags
 
         if config is None:
             raise ValueError("ros: --config topics.yaml is required (it maps topics to keys)")
         # A bag, a rosbag2 folder, or a folder of bags (read in name order, one episode each).
-        return read_rosbags([source], load_rosbag_config(config))
+        return read_rosbags([source], load_rosbag_config(config), skip_bad=skip_bad)
     if fmt == "lasa":
         from rfmp_rl.data.lasa import read_lasa
 
@@ -97,7 +106,10 @@ def _indices(text: str) -> list[int]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="rfmp-convert", description=__doc__.split("\n")[0])
+    parser = argparse.ArgumentParser(
+        prog="rfmp-convert", description=__doc__.split("\n")[0], epilog=ROS_HELP,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
     parser.add_argument("format", choices=FORMATS)
     parser.add_argument("source", help="file, folder, bag(s), LASA shape names (comma-separated) "
                         "or a Minari dataset id")
@@ -109,11 +121,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rate", type=float, help="control rate in Hz of a source that records "
                         "none (minari; dp_zarr, default 10): timestamps = step / rate")
     parser.add_argument("--filter", dest="filter_key", help="robomimic mask/<filter> split")
-    parser.add_argument("--config", help="ROS: YAML mapping topics to keys and the control rate")
+    parser.add_argument("--config", help="ROS: the topic config YAML (see below)")
+    parser.add_argument("--skip-bad", action="store_true",
+                        help="ROS: skip unreadable bags (corrupt, missing topic, gap); list them")
     parser.add_argument("--dry-run", action="store_true", help="read and print; write nothing")
     args = parser.parse_args(argv)
     if args.out is None and not args.dry_run:
         parser.error("--out is required unless --dry-run")
+    if args.skip_bad and args.format != "ros":
+        parser.error("--skip-bad applies to the ros format only")
     try:
         if not args.dry_run:  # before the read: a refused --out costs nothing
             check_store_destination(args.out)
@@ -125,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             config=args.config,
             episodes=_indices(args.episodes) if args.episodes else None,
             rate_hz=args.rate,
+            skip_bad=args.skip_bad,
         )
     except (DataError, FileNotFoundError, ValueError, ImportError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)
@@ -141,6 +158,11 @@ def main(argv: list[str] | None = None) -> int:
                   file=sys.stderr)
             return 2
         print(f"wrote {path} ({manifest.episodes} episodes, {manifest.steps} steps)")
+    bags = [item for item in manifest.skipped if "episode" not in item]
+    if bags:
+        print(f"skipped {len(bags)} unreadable bag(s):")
+        for item in bags:
+            print(f"  {item['file']}: {item['reason']}")
     return 0
 
 

@@ -222,6 +222,12 @@ class Manifest:
         episode_names: the source's name for each episode, in order.
         episode_lengths: steps per episode, in order.
         keys: ``"a/b"`` -> ``{"shape": [per-step shape], "dtype": "float32"}``.
+        gaps: streams that went without data for longer than the reader allows, each
+            ``{"file", "episode", "topic", "kind", "start_s", "end_s", "length_s"}`` (``kind``:
+            ``"gap"``, ``"late start"`` or ``"early end"``; times in seconds from the start of
+            the recording the episode was cut from).
+        skipped: what was read but not returned, each ``{"file", "reason"}`` (and
+            ``"episode"`` for a part of a file): unreadable files, slivers between gaps.
         extra: source metadata (env arguments, topics, split filters, ...).
 
     Example:
@@ -240,6 +246,8 @@ class Manifest:
     episode_names: list[str] = field(default_factory=list)
     episode_lengths: list[int] = field(default_factory=list)
     keys: dict[str, dict[str, Any]] = field(default_factory=dict)
+    gaps: list[dict[str, Any]] = field(default_factory=list)
+    skipped: list[dict[str, Any]] = field(default_factory=list)
     extra: dict[str, Any] = field(default_factory=dict)
 
     def add(self, episode: TensorDict, name: str | int) -> None:
@@ -285,4 +293,15 @@ class Manifest:
         for name, entry in self.keys.items():
             shape = "x".join(str(s) for s in entry["shape"]) or "scalar"
             lines.append(f"  {name:<{width}}  {shape:<12} {entry['dtype']}")
+        if self.gaps:
+            lines.append(f"  {len(self.gaps)} gaps (episodes cut there):")
+        for gap in self.gaps:
+            lines.append(
+                f"    {gap['episode']} {gap['topic']}: {gap['kind']}, {gap['start_s']:.3f} s to "
+                f"{gap['end_s']:.3f} s ({gap['length_s']:.3f} s)"
+            )
+        if self.skipped:
+            lines.append(f"  {len(self.skipped)} skipped:")
+        for item in self.skipped:
+            lines.append(f"    {item.get('episode', item['file'])}: {item['reason']}")
         return "\n".join(lines)

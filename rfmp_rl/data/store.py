@@ -207,6 +207,12 @@ class ContextChunk(Transform):
         self.camera_keys = [parse_key(k) for k in camera_keys]
         self.action_key = parse_key(action_key)
         self.concat = {parse_key(k): [parse_key(i) for i in v] for k, v in (concat or {}).items()}
+        if self.action_key in self.concat:
+            raise ValueError(
+                f"ContextChunk: concat builds observation windows and cannot build the action "
+                f"{key_name(self.action_key)!r}; build a flat action when reading the data "
+                "(e.g. action: [topics] in a ROS topic config)"
+            )
 
     @staticmethod
     def _get(tensordict: TensorDictBase, key: NestedKey) -> torch.Tensor:

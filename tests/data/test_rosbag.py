@@ -21,6 +21,7 @@ from rosbags.typesys import Stores, get_typestore  # noqa: E402
 
 from rfmp_rl.data.episodes import DataError  # noqa: E402
 from rfmp_rl.data.rosbag import (  # noqa: E402
+    CONFIG_FIELDS,
     RosbagConfig,
     TopicConfig,
     load_rosbag_config,
@@ -301,7 +302,12 @@ def test_every_stream_is_resampled_onto_the_grid(fmt, tmp_path):
         "gripper_closed": {"shape": [1], "dtype": "bool"},
         "image": {"shape": [4, 6, 3], "dtype": "uint8"},
         "obs/wrist": {"shape": [5, 3, 3], "dtype": "uint8"},
+        "timestamp": {"shape": [], "dtype": "float64"},
     }
+    stamps = episodes[0]["timestamp"]
+    assert stamps.dtype == torch.float64
+    np.testing.assert_allclose(stamps.numpy(), grid - grid[0], atol=1e-12)
+    assert manifest.gaps == [] and manifest.skipped == []
     topics = manifest.extra["topics"]
     assert topics["/robot/ee_pose"]["msgtypes"] == ["geometry_msgs/msg/PoseStamped"]
     assert topics["/camera/compressed"]["msgtypes"] == ["sensor_msgs/msg/CompressedImage"]
@@ -342,7 +348,7 @@ def test_markers_split_a_bag_into_episodes(fmt, marker, tmp_path):
     assert manifest.extra["topics"]["/episode_marker"]["messages"] == 6
 
 
-def test_time_reference_bounds_the_episode_and_holds_shorter_streams(tmp_path):
+def test_time_reference_bounds_the_episode_and_holds_streams_within_max_gap(tmp_path):
     bag = Bag("sqlite3")
     for k in range(21):  # action at 10 Hz over 2 s
         t = 0.1 * k
@@ -356,7 +362,11 @@ def test_time_reference_bounds_the_episode_and_holds_shorter_streams(tmp_path):
         "time_reference": "act",
         "topics": {"/action": "act", "/gripper": {"key": "gripper"}},
     }
-    (ep,), manifest = read_rosbags(path, config)
+    # The gripper stops 1.5 s before the action ends: longer than the default max_gap_s.
+    with pytest.raises(DataError, match="the stream ends early") as err:
+        read_rosbags(path, config)
+    assert "topic /gripper" in str(err.value) and "from 0.500 s to 2.000 s" in str(err.value)
+    (ep,), manifest = read_rosbags(path, {**config, "max_gap_s": 1.6})
     grid = np.arange(11) / 5
     assert ep.batch_size == (11,) and manifest.steps == 11
     np.testing.assert_allclose(ep["act"].numpy()[:, 0], 3.0 * grid, atol=1e-5)
@@ -734,3 +744,322 @@ def test_convert_command_reports_a_missing_topic(tmp_path, capsys):
     assert convert_main(["ros", str(path), "--config", str(config), "--dry-run"]) == 2
     err = capsys.readouterr().err
     assert str(path) in err and "/nope" in err
+
+
+# --------------------------------------------------------------------------------------------
+# Flat folders of ROS 2 bags
+
+
+def bare_storage_file(bag: Bag, folder: Path, name: str) -> Path:
+    """Write ``bag`` as a rosbag2 recording and keep only its storage file, as ``name``."""
+    recording = bag.write(folder / f"{name}_recording")
+    storage = next(p for p in recording.iterdir() if p.suffix in (".db3", ".mcap"))
+    target = folder / f"{name}{storage.suffix}"
+    storage.rename(target)
+    for p in recording.iterdir():
+        p.unlink()
+    recording.rmdir()
+    return target
+
+
+@pytest.mark.parametrize("fmt", ["sqlite3", "mcap"])
+def test_flat_folder_of_ros2_bags_gives_one_episode_per_bag(fmt, tmp_path):
+    flat = tmp_path / "flat"
+    flat.mkdir()
+    for i in range(3):  # three recordings 50 s apart, each 1 s long
+        bag = Bag(fmt)
+        for k in range(11):
+            bag.scalar("/x", T0 + (50 * i) * SEC + round(0.1 * k * SEC), 10.0 * i + k, "Float64")
+        bare_storage_file(bag, flat, f"run{i}")
+    episodes, manifest = read_rosbags(flat, {"rate_hz": 10, "topics": {"/x": "x"}})
+    suffix = ".db3" if fmt == "sqlite3" else ".mcap"
+    assert manifest.episode_names == [f"run{i}{suffix}" for i in range(3)]
+    assert [len(e) for e in episodes] == [11, 11, 11] and manifest.format == "ros2"
+    for i, ep in enumerate(episodes):  # nothing interpolated across the 49 s between them
+        np.testing.assert_allclose(ep["x"][:, 0].numpy(), 10.0 * i + np.arange(11), atol=1e-9)
+    # bare files, rosbag2 folders and ROS 1 files side by side: one bag each, in name order
+    bag = Bag("sqlite3" if fmt == "mcap" else "mcap")
+    for k in range(4):
+        bag.scalar("/x", T0 + round(0.1 * k * SEC), 1.0, "Float64")
+    bag.write(flat / "run3")
+    bag = Bag("ros1")
+    for k in range(5):
+        bag.scalar("/x", T0 + round(0.1 * k * SEC), 2.0, "Float64")
+    bag.write(flat / "run4")
+    episodes, manifest = read_rosbags(flat, {"rate_hz": 10, "topics": {"/x": "x"}})
+    assert manifest.episode_names == [*(f"run{i}{suffix}" for i in range(3)), "run3", "run4.bag"]
+    assert [len(e) for e in episodes] == [11, 11, 11, 4, 5]
+
+
+# --------------------------------------------------------------------------------------------
+# Gaps
+
+
+def gap_bag(fmt: str = "sqlite3", camera_until: float = 8.0, hole: tuple[float, float] | None = None
+            ) -> Bag:
+    """Joints at 10 Hz over 8 s; a camera at 10 Hz until ``camera_until`` with an optional
+    ``hole`` (seconds) without frames."""
+    bag = Bag(fmt)
+    for k in range(81):
+        t = 0.1 * k
+        ns = T0 + round(t * SEC)
+        bag.joints("/joint_states", ns, ns, ["j1", "j2", "j3"], joint_values(t))
+        if t <= camera_until + 1e-9 and not (hole and hole[0] < t < hole[1]):
+            bag.image("/camera/image", ns, ns, rgb_frame(k))
+    return bag
+
+
+GAP_CONFIG = {"rate_hz": 10, "topics": {"/joint_states": "joints", "/camera/image": "image"}}
+
+
+@pytest.mark.parametrize("fmt", FORMATS)
+def test_a_stream_that_stops_early_is_an_error_naming_bag_topic_and_times(fmt, tmp_path):
+    path = gap_bag(fmt, camera_until=2.0).write(tmp_path / "cam")
+    with pytest.raises(DataError, match="the stream ends early") as err:
+        read_rosbags(path, GAP_CONFIG)
+    text = str(err.value)
+    assert str(path) in text and "topic /camera/image" in text
+    assert "no message for 6.000 s, from 2.000 s to 8.000 s" in text
+    assert "max_gap_s = 0.5 s" in text
+    # the same with the joints as the time reference (the camera used to be held silently)
+    with pytest.raises(DataError, match="the stream ends early"):
+        read_rosbags(path, {**GAP_CONFIG, "time_reference": "joints"})
+
+
+def test_a_stream_that_starts_late_is_a_gap(tmp_path):
+    bag = Bag("mcap")
+    for k in range(31):
+        bag.scalar("/a", T0 + round(0.1 * k * SEC), 1.0, "Float64")
+        if k >= 12:
+            bag.scalar("/b", T0 + round(0.1 * k * SEC), 2.0, "Float64")
+    path = bag.write(tmp_path / "late")
+    config = {"rate_hz": 10, "topics": {"/a": "a", "/b": "b"}}
+    with pytest.raises(DataError, match="the stream starts late") as err:
+        read_rosbags(path, config)
+    assert "topic /b" in str(err.value) and "from 0.000 s to 1.200 s" in str(err.value)
+    (ep,), manifest = read_rosbags(path, {**config, "max_gap_s": 1.5})
+    assert len(ep) == 19 and manifest.gaps == []
+
+
+@pytest.mark.parametrize("fmt", ["sqlite3", "ros1"])
+def test_gaps_split_episodes_when_configured_and_the_manifest_lists_them(fmt, tmp_path):
+    # camera frames missing between 3 s and 5 s, and the camera dies at 7 s
+    path = gap_bag(fmt, camera_until=7.0, hole=(3.0, 5.0)).write(tmp_path / "cam")
+    with pytest.raises(DataError, match=r"gap: no message for 2\.000 s.*1 more gap"):
+        read_rosbags(path, GAP_CONFIG)
+    episodes, manifest = read_rosbags(path, {**GAP_CONFIG, "on_gap": "split"})
+    name = path.name
+    assert manifest.episode_names == [f"{name}~0", f"{name}~1"]
+    assert [len(e) for e in episodes] == [31, 21]  # 0..3 s and 5..7 s
+    np.testing.assert_allclose(
+        episodes[1]["joints"].numpy(), np.stack([joint_values(5 + 0.1 * k) for k in range(21)]),
+        atol=1e-5,
+    )
+    np.testing.assert_array_equal(episodes[1]["image"].numpy(),
+                                  np.stack([rgb_frame(50 + k) for k in range(21)]))
+    np.testing.assert_allclose(episodes[1]["timestamp"].numpy(), np.arange(21) / 10, atol=1e-12)
+    assert [(g["topic"], g["kind"], g["start_s"], g["end_s"]) for g in manifest.gaps] == [
+        ("/camera/image", "gap", 3.0, 5.0), ("/camera/image", "early end", 7.0, 8.0),
+    ]
+    assert all(g["episode"] == name and g["file"] == str(path) for g in manifest.gaps)
+    text = str(manifest)
+    assert f"{name} /camera/image: gap, 3.000 s to 5.000 s (2.000 s)" in text
+    assert f"{name} /camera/image: early end, 7.000 s to 8.000 s (1.000 s)" in text
+    # a gap up to max_gap_s is interpolated over
+    episodes, manifest = read_rosbags(path, {**GAP_CONFIG, "max_gap_s": 2.5, "on_gap": "split"})
+    assert manifest.episode_names == [name] and len(episodes[0]) == 71 and manifest.gaps == []
+
+
+def test_gap_config_validation():
+    for data, match in [
+        ({"max_gap_s": 0}, "max_gap_s must be a positive"),
+        ({"max_gap_s": "soon"}, "max_gap_s must be a positive number of seconds, got 'soon'"),
+        ({"rate_hz": "fast"}, "rate_hz must be positive, got 'fast'"),
+        ({"on_gap": "hold"}, "on_gap must be one of error, split"),
+    ]:
+        with pytest.raises(DataError, match=match):
+            RosbagConfig.from_dict({"topics": {"/a": "a"}, **data})
+    cfg = RosbagConfig.from_dict({"topics": {"/a": "a"}})
+    assert cfg.gap_limit_s(100.0) == 0.5 and cfg.gap_limit_s(2.0) == 1.5
+
+
+# --------------------------------------------------------------------------------------------
+# Unreadable bags
+
+
+def bad_bags(tmp_path: Path) -> tuple[Path, list[Path]]:
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    good = small_bag("ros1").write(folder / "a_good")
+    corrupt = small_bag("ros1").write(folder / "b_corrupt")
+    corrupt.write_bytes(corrupt.read_bytes()[:300])
+    bag = Bag("ros1")
+    bag.scalar("/other", T0, 1.0)
+    missing = bag.write(folder / "c_missing_topic")
+    return folder, [good, corrupt, missing]
+
+
+def test_skip_bad_lists_unreadable_bags_in_the_manifest(tmp_path):
+    folder, (good, corrupt, missing) = bad_bags(tmp_path)
+    with pytest.raises(DataError, match="truncated or corrupt") as err:
+        read_rosbags(folder, SMALL)
+    assert str(corrupt) in str(err.value)
+    episodes, manifest = read_rosbags(folder, SMALL, skip_bad=True)
+    assert manifest.episode_names == [good.name] and len(episodes) == 1
+    assert [s["file"] for s in manifest.skipped] == [str(corrupt), str(missing)]
+    assert "truncated or corrupt" in manifest.skipped[0]["reason"]
+    assert "topic /joint_states" in manifest.skipped[1]["reason"]
+    assert "topic not in the bag" in manifest.skipped[1]["reason"]
+    assert "2 skipped:" in str(manifest) and str(missing) in str(manifest)
+    with pytest.raises(DataError, match="no readable bag among 2"):
+        read_rosbags([corrupt, missing], SMALL, skip_bad=True)
+
+
+def test_convert_command_skip_bad(tmp_path, capsys):
+    import yaml
+
+    from rfmp_rl.data.convert import main as convert_main
+    from rfmp_rl.data.store import DemonstrationStore
+
+    folder, (good, corrupt, missing) = bad_bags(tmp_path)
+    config = tmp_path / "topics.yaml"
+    config.write_text(yaml.safe_dump(SMALL))
+    args = ["ros", str(folder), "--config", str(config), "--out", str(tmp_path / "store")]
+    assert convert_main(args) == 2
+    captured = capsys.readouterr()
+    assert str(corrupt) in captured.err and "Traceback" not in captured.err
+    assert not (tmp_path / "store").exists()
+    assert convert_main([*args, "--skip-bad"]) == 0
+    out = capsys.readouterr().out
+    tail = out[out.index("wrote"):]
+    assert "skipped 2 unreadable bag(s)" in tail and str(corrupt) in tail and str(missing) in tail
+    store = DemonstrationStore.load(tmp_path / "store")
+    assert store.num_episodes == 1
+    assert [s["file"] for s in store.manifest.skipped] == [str(corrupt), str(missing)]
+    with pytest.raises(SystemExit) as exit_:
+        convert_main(["lasa", "LShape", "--dry-run", "--skip-bad"])
+    assert exit_.value.code == 2 and "ros format only" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------------
+# Flat vectors from several topics
+
+
+def pose_gripper_bag(fmt: str) -> Bag:
+    """A commanded pose whose quaternion starts with w < 0 and flips sign halfway, a gripper
+    command, the measured pose and joint velocities: all at 20 Hz for 1 s."""
+    bag = Bag(fmt)
+    for k in range(21):
+        t = 0.05 * k
+        ns = T0 + round(t * SEC)
+        sign = -1.0 if k < 10 else 1.0  # w = cos(...) > 0, so w < 0 for the first half
+        bag.pose("/cmd_pose", ns, ns, position(t), sign * rotation(t))
+        bag.scalar("/gripper_cmd", ns, gripper(t), "Float64")
+        bag.pose("/ee_pose", ns, ns, position(t) + 1.0, rotation(t))
+        bag.joints("/joint_states", ns, ns, ["j1", "j2", "j3"], joint_values(t))
+    return bag
+
+
+@pytest.mark.parametrize("fmt", ["mcap", "ros1"])
+def test_action_and_observation_vectors_from_several_topics(fmt, tmp_path):
+    path = pose_gripper_bag(fmt).write(tmp_path / "teleop")
+    config = {
+        "rate_hz": 10,
+        "action": ["/cmd_pose", "/gripper_cmd"],
+        "action_manifold": "R3 x S3 x R1",
+        "observation": {"state": ["/ee_pose", {"topic": "/joint_states", "field": "velocity"}]},
+        "topics": {"/gripper_cmd": "gripper"},  # a vector's topic may also have its own key
+    }
+    (ep,), manifest = read_rosbags(path, config)
+    grid = np.arange(11) / 10
+    action = ep["action"]
+    assert action.shape == (11, 8) and action.dtype == torch.float32
+    np.testing.assert_allclose(action[:, :3].numpy(), [position(t) for t in grid], atol=1e-5)
+    q = action[:, 3:7].double().numpy()
+    np.testing.assert_allclose(np.linalg.norm(q, axis=1), 1.0, atol=1e-6)
+    assert q[0, 3] >= 0 and ((q[1:] * q[:-1]).sum(axis=1) > 0).all()  # xyzw, w >= 0 first
+    np.testing.assert_allclose(q, [rotation(t) for t in grid], atol=1e-5)
+    np.testing.assert_allclose(action[:, 7].numpy(), [gripper(t) for t in grid], atol=1e-6)
+    state = ep["observation", "state"]
+    assert state.shape == (11, 10)
+    np.testing.assert_allclose(state[:, :3].numpy(), [position(t) + 1 for t in grid], atol=1e-5)
+    np.testing.assert_allclose(state[:, 7:].numpy(), [-joint_values(t) for t in grid], atol=1e-5)
+    np.testing.assert_allclose(ep["gripper"][:, 0].numpy(), action[:, 7].numpy())
+    assert manifest.keys["action"] == {"shape": [8], "dtype": "float32"}
+    assert manifest.extra["vectors"]["action"] == [
+        {"topic": "/cmd_pose", "kind": "pose", "start": 0, "size": 7},
+        {"topic": "/gripper_cmd", "kind": "vector", "start": 7, "size": 1},
+    ]
+    assert manifest.extra["config"]["action_manifold"] == "R3 x S3 x R1"
+    assert RosbagConfig.from_dict(manifest.extra["config"]) == RosbagConfig.from_dict(config)
+
+
+def test_vector_layout_must_match_the_declared_manifold(tmp_path):
+    path = pose_gripper_bag("sqlite3").write(tmp_path / "teleop")
+    config = {"rate_hz": 10, "action": ["/cmd_pose", "/joint_states"],
+              "action_manifold": "R3 x S3 x R1"}
+    with pytest.raises(DataError, match="flat layout R3 x S3 x R3") as err:
+        read_rosbags(path, config)
+    text = str(err.value)
+    assert str(path) in text and "key action" in text and "/joint_states: R3" in text
+    # a list of topics as the observation gives one flat 'observation' key
+    (ep,), _ = read_rosbags(path, {"rate_hz": 10, "observation": ["/gripper_cmd", "/ee_pose"],
+                                   "observation_manifold": "R1 x R3 x S3"})
+    assert ep["observation"].shape == (11, 8)
+
+
+def test_images_cannot_be_part_of_a_vector(tmp_path):
+    bag = small_bag("mcap")
+    bag.image("/camera/image", T0, T0, rgb_frame(0))
+    path = bag.write(tmp_path / "b")
+    with pytest.raises(DataError, match="cannot be part of the flat vector observation"):
+        read_rosbags(path, {"rate_hz": 10, "observation": ["/joint_states", "/camera/image"]})
+
+
+def test_unknown_or_conflicting_vector_config_is_refused(tmp_path):
+    with pytest.raises(DataError, match=r"unknown rosbag config field\(s\) \['concat'\]") as err:
+        RosbagConfig.from_dict({"topics": {"/a": "a"}, "concat": {"action": ["/a", "/b"]}})
+    assert "allowed: rate_hz, topics, action, action_manifold, observation" in str(err.value)
+    path = tmp_path / "topics.yaml"
+    path.write_text("rate_hz: 10\ntopics: {/a: a}\nconcat: {action: [/a]}\n")
+    with pytest.raises(DataError, match="concat") as err:
+        load_rosbag_config(path)
+    assert str(path) in str(err.value)
+    bad = [
+        ({"action": "/a"}, "action must be a non-empty list"),
+        ({"action": ["/a"], "action_manifold": "R3 x Q3"}, "cannot read factor"),
+        ({"action_manifold": "R3"}, "without action"),
+        ({"action": [{"topic": "/a", "fields": "velocity"}]}, "allowed fields are topic"),
+        ({"action": ["/a"], "topics": {"/b": "action/x"}}, "collide"),
+        ({"topics": {"/a": "timestamp"}}, "collide"),
+        ({"action": [{"topic": "/j", "field": "velocity"}],
+          "observation": [{"topic": "/j", "field": "effort"}]}, "a topic is read one way"),
+        ({"observation": {"s": ["/a"]}, "observation_manifold": "R1"}, "must be one too"),
+    ]
+    for data, match in bad:
+        with pytest.raises(DataError, match=match):
+            RosbagConfig.from_dict(data)
+    cfg = RosbagConfig.from_dict({"action": ["/j"], "time_reference": "action"})
+    assert cfg.read_options()["/j"].key == "action"
+
+
+def test_readme_topic_config_is_a_valid_config():
+    import yaml
+
+    readme = Path(__file__).resolve().parents[2] / "README.md"
+    section = readme.read_text().split("### ROS bags: the topic config", 1)[1]
+    block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
+    data = yaml.safe_load(block)
+    assert set(data) == set(CONFIG_FIELDS)  # the README shows every field
+    cfg = RosbagConfig.from_dict(data)
+    assert [p.topic for p in cfg.vectors["action"]] == ["/cmd_pose", "/gripper_cmd"]
+    assert cfg.manifolds == {"action": "R3 x S3 x R1", "observation/state": "R3 x S3 x R1"}
+
+
+def test_rosbag_module_re_exports_the_ros_package():
+    import rfmp_rl.data.ros as ros
+    import rfmp_rl.data.rosbag as rosbag
+
+    for name in rosbag.__all__:
+        assert getattr(rosbag, name) is getattr(ros, name), name
+    assert set(rosbag.__all__) == set(ros.__all__)

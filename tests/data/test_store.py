@@ -142,6 +142,9 @@ def test_concat_builds_one_observation_vector():
     r = batch["index"][:, 1]
     assert torch.equal(batch["observation"][:, 1, :4], ep["kp"][r].reshape(4, 4))
     assert torch.equal(batch["observation"][:, 1, 4:], -torch.ones(4, 2))
+    # concat into the action would be overwritten by the action chunk: refused
+    with pytest.raises(ValueError, match="cannot build the action 'action'"):
+        store.replay_buffer(2, concat={"action": ["kp", "pos"]})
 
 
 def test_save_and_load_round_trip(tmp_path):
