@@ -9,8 +9,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
-from rfmp_rl.keys import TIMESTAMP
 from rfmp_rl.data.episodes import DataError
+from rfmp_rl.keys import TIMESTAMP
 from rfmp_rl.manifolds import parse_manifold
 
 __all__ = [
