@@ -116,7 +116,9 @@ def ensure_demos(cfg: DictConfig) -> Path:
 @functools.lru_cache(maxsize=2)
 def _read(path: str, images: bool):
     keys_ = list(ROBOSUITE_LOW_DIM_KEYS) + (list(CAMERAS) if images else [])
-    return read_robomimic(path, obs_keys=keys_, load_images=images)
+    # Raw signs: the policy sees robosuite's eef quaternion as the environment reports it at
+    # evaluation, so the training observations keep the recorded signs too.
+    return read_robomimic(path, obs_keys=keys_, load_images=images, raw_quaternion_signs=True)
 
 
 def policy_episodes(raw: list[TensorDict], cfg: DictConfig) -> list[TensorDict]:

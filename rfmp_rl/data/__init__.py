@@ -12,6 +12,11 @@ from rfmp_rl.data.lasa import (
 )
 from rfmp_rl.data.lerobot import read_lerobot
 from rfmp_rl.data.minari import read_minari
+from rfmp_rl.data.quaternions import (
+    QuaternionField,
+    canonicalize_episode_quaternions,
+    parse_quaternion_fields,
+)
 from rfmp_rl.data.robomimic import read_robomimic, write_robomimic
 from rfmp_rl.data.ros import RosbagConfig, TopicConfig, load_rosbag_config, read_rosbags
 from rfmp_rl.data.slices import SlicesToChunks
@@ -28,6 +33,9 @@ __all__ = [
     "Manifest",
     "make_episode",
     "step_timestamps",
+    "QuaternionField",
+    "parse_quaternion_fields",
+    "canonicalize_episode_quaternions",
     "DemonstrationStore",
     "HorizonContextSampler",
     "ContextChunk",

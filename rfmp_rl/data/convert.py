@@ -49,12 +49,17 @@ def read_source(
     episodes: list[int] | None = None,
     rate_hz: float | None = None,
     skip_bad: bool = False,
+    quaternions: str | None = None,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Dispatch to the reader of ``fmt`` (one of `FORMATS`). ``episodes`` selects episodes by
     the source's index (``lerobot``, ``minari``); ``rate_hz`` is the control rate of a source
     that records none (``minari``, ``dp_zarr``).
 
     ``skip_bad`` (ROS only) skips unreadable bags and lists them in ``manifest.skipped``.
+    ``quaternions`` names quaternion fields the reader cannot know (``"action[3:7],obs/q:wxyz"``,
+    `rfmp_rl.data.quaternions`); ``raw_quaternion_signs`` keeps the recorded signs of every
+    quaternion field, known or named.
 
     Example:
         >>> eps, manifest = read_source("lasa", "LShape")
@@ -66,21 +71,27 @@ def read_source(
     if rate_hz is not None and fmt not in ("dp_zarr", "minari"):
         raise ValueError(f"{fmt}: --rate is read by the dp_zarr and minari formats only (the "
                          "others record their rate)")
+    if quaternions is not None and fmt in ("ros", "lasa"):
+        raise ValueError(f"{fmt}: --quaternions is not read (" + (
+            "pose orientations are known from the message types)" if fmt == "ros" else
+            "LASA shapes are 2-D positions)"))
+    quats = {"quaternions": quaternions, "raw_quaternion_signs": raw_quaternion_signs}
     if fmt == "dp_zarr":
         from rfmp_rl.data.dp_zarr import PUSHT_RATE_HZ, read_dp_zarr
 
-        return read_dp_zarr(source, keys, rate_hz=rate_hz or PUSHT_RATE_HZ)
+        return read_dp_zarr(source, keys, rate_hz=rate_hz or PUSHT_RATE_HZ, **quats)
     if fmt == "robomimic":
         from rfmp_rl.data.robomimic import read_robomimic
 
-        return read_robomimic(source, obs_keys=keys, filter_key=filter_key)
+        return read_robomimic(source, obs_keys=keys, filter_key=filter_key, **quats)
     if fmt == "ros":
         from rfmp_rl.data.ros import load_rosbag_config, read_rosbags
 
         if config is None:
             raise ValueError("ros: --config topics.yaml is required (it maps topics to keys)")
         # A bag, a rosbag2 folder, or a folder of bags (read in name order, one episode each).
-        return read_rosbags([source], load_rosbag_config(config), skip_bad=skip_bad)
+        return read_rosbags([source], load_rosbag_config(config), skip_bad=skip_bad,
+                            raw_quaternion_signs=raw_quaternion_signs)
     if fmt == "lasa":
         from rfmp_rl.data.lasa import read_lasa
 
@@ -88,13 +99,13 @@ def read_source(
     if fmt == "lerobot":
         from rfmp_rl.data.lerobot import read_lerobot
 
-        return read_lerobot(source, episodes=episodes, keys=keys)
+        return read_lerobot(source, episodes=episodes, keys=keys, **quats)
     if fmt == "minari":
         from rfmp_rl.data.minari import read_minari
 
         if keys is not None:
             raise ValueError("minari: --keys is not read (every numeric entry is stored)")
-        return read_minari(source, episodes=episodes, rate_hz=rate_hz)
+        return read_minari(source, episodes=episodes, rate_hz=rate_hz, **quats)
     raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
 
 
@@ -124,6 +135,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", help="ROS: the topic config YAML (see below)")
     parser.add_argument("--skip-bad", action="store_true",
                         help="ROS: skip unreadable bags (corrupt, missing topic, gap); list them")
+    parser.add_argument("--quaternions", metavar="KEY[a:b][:ORDER],...",
+                        help="quaternion fields the reader cannot know, by store key ('a/b'), "
+                        "e.g. action[3:7] or obs/q:wxyz (ORDER xyzw, the default, has w last); "
+                        "each episode's first sample is put at w >= 0, then signs are made "
+                        "continuous. robomimic obs/*quat and ROS orientations always are")
+    parser.add_argument("--raw-quaternion-signs", action="store_true",
+                        help="keep the recorded quaternion signs (no w >= 0, no continuity)")
     parser.add_argument("--dry-run", action="store_true", help="read and print; write nothing")
     args = parser.parse_args(argv)
     if args.out is None and not args.dry_run:
@@ -142,6 +160,8 @@ def main(argv: list[str] | None = None) -> int:
             episodes=_indices(args.episodes) if args.episodes else None,
             rate_hz=args.rate,
             skip_bad=args.skip_bad,
+            quaternions=args.quaternions,
+            raw_quaternion_signs=args.raw_quaternion_signs,
         )
     except (DataError, FileNotFoundError, ValueError, ImportError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)

@@ -27,6 +27,11 @@ from rfmp_rl.data.episodes import (
     make_episode,
     step_timestamps,
 )
+from rfmp_rl.data.quaternions import (
+    QuaternionField,
+    canonicalize_episode_quaternions,
+    parse_quaternion_fields,
+)
 from rfmp_rl.keys import TIMESTAMP
 
 __all__ = ["read_dp_zarr", "write_dp_zarr", "PUSHT_RATE_HZ"]
@@ -58,6 +63,8 @@ def read_dp_zarr(
     *,
     image_keys: Sequence[str] | None = None,
     rate_hz: float | None = PUSHT_RATE_HZ,
+    quaternions: str | Sequence[str | QuaternionField] | None = None,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read a Diffusion Policy zarr replay buffer into episodes.
 
@@ -68,6 +75,10 @@ def read_dp_zarr(
             whose last axis is 1, 3 or 4.
         rate_hz: the control rate to record in the manifest (Push-T: 10 Hz); each episode's
             ``timestamp`` is ``step / rate_hz``. ``None``: unknown, no timestamps.
+        quaternions: further quaternion fields, a spec ``"KEY[a:b][:ORDER],..."`` or a list
+            (`rfmp_rl.data.quaternions`): each episode's first sample is put at ``w >= 0``,
+            then its signs are made continuous.
+        raw_quaternion_signs: keep the recorded quaternion signs.
 
     Returns:
         ``(episodes, manifest)``; episode keys keep the store's names.
@@ -87,6 +98,7 @@ def read_dp_zarr(
         >>> [ep.batch_size[0] for ep in eps], eps[0]["img"].dtype, manifest.steps
         ([3, 2], torch.uint8, 5)
     """
+    quats = parse_quaternion_fields(quaternions)
     path = Path(path)
     root = _open(path)
     file = str(path)
@@ -158,6 +170,8 @@ def read_dp_zarr(
         ep = make_episode(arrays, file=file, episode=e)
         manifest.add(ep, name=e)
         episodes.append(ep)
+    if quats:
+        canonicalize_episode_quaternions(episodes, manifest, quats, raw=raw_quaternion_signs)
     return episodes, manifest
 
 

@@ -293,6 +293,13 @@ class Manifest:
         for name, entry in self.keys.items():
             shape = "x".join(str(s) for s in entry["shape"]) or "scalar"
             lines.append(f"  {name:<{width}}  {shape:<12} {entry['dtype']}")
+        quats = self.extra.get("quaternions")
+        for f in (quats or {}).get("fields", []):
+            cols = "" if f["columns"] is None else f"[{f['columns'][0]}:{f['columns'][1]}]"
+            what = ("raw signs kept" if quats["raw_signs"] else "w >= 0 first, continuous")
+            lines.append(f"  quaternions {f['key']}{cols}:{f['order']} ({what}): "
+                         f"{f['first_flipped']} episodes with w < 0 first, "
+                         f"{f['continuity_flipped']} with sign switches")
         if self.gaps:
             lines.append(f"  {len(self.gaps)} gaps (episodes cut there):")
         for gap in self.gaps:

@@ -78,6 +78,11 @@ from rfmp_rl.data.episodes import (
     make_episode,
     parse_key,
 )
+from rfmp_rl.data.quaternions import (
+    QuaternionField,
+    canonicalize_episode_quaternions,
+    parse_quaternion_fields,
+)
 from rfmp_rl.keys import TIMESTAMP
 
 __all__ = ["read_lerobot", "lerobot_store_key", "LEROBOT_VERSIONS"]
@@ -467,6 +472,8 @@ def read_lerobot(
     *,
     episodes: Sequence[int] | None = None,
     keys: Sequence[str] | Mapping[str, str] | str | None = None,
+    quaternions: str | Sequence[str | QuaternionField] | None = None,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read a local LeRobot dataset folder (format v2.0, v2.1 or v3.0) into episodes.
 
@@ -478,6 +485,10 @@ def read_lerobot(
             comma-separated string, or a ``{name: store key}`` mapping); default: every
             feature but the bookkeeping and string ones. ``action`` and ``timestamp`` are always
             read.
+        quaternions: quaternion fields by store key (after renaming), a spec
+            ``"KEY[a:b][:ORDER],..."`` or a list (`rfmp_rl.data.quaternions`): each episode's
+            first sample is put at ``w >= 0``, then its signs are made continuous.
+        raw_quaternion_signs: keep the recorded quaternion signs.
 
     Returns:
         ``(episodes, manifest)``: TensorDicts of batch ``[T]`` keyed as in the module docstring;
@@ -494,6 +505,7 @@ def read_lerobot(
         ...
         rfmp_rl.data.episodes.DataError: no/such/folder: no such LeRobot dataset folder
     """
+    quats = parse_quaternion_fields(quaternions)
     root = Path(path)
     ds = _open_dataset(root)
     chosen = _select_features(ds, keys)
@@ -563,4 +575,6 @@ def read_lerobot(
         episode = make_episode(arrays, file=file, episode=ep)
         manifest.add(episode, name=ep)
         out.append(episode)
+    if quats:
+        canonicalize_episode_quaternions(out, manifest, quats, raw=raw_quaternion_signs)
     return out, manifest

@@ -39,6 +39,11 @@ import numpy as np
 from tensordict import TensorDict
 
 from rfmp_rl.data.episodes import DataError, Manifest, make_episode, step_timestamps
+from rfmp_rl.data.quaternions import (
+    QuaternionField,
+    canonicalize_episode_quaternions,
+    parse_quaternion_fields,
+)
 from rfmp_rl.keys import TIMESTAMP
 
 __all__ = ["read_minari", "minari_dataset_path"]
@@ -106,6 +111,8 @@ def read_minari(
     *,
     episodes: Sequence[int] | None = None,
     rate_hz: float | None = None,
+    quaternions: str | Sequence[str | QuaternionField] | None = None,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read a local Minari dataset into episodes aligned as ``(o_i, a_i)``.
 
@@ -113,6 +120,10 @@ def read_minari(
         source: a dataset id (under ``$MINARI_DATASETS_PATH``) or a local path.
         episodes: episode ids to read, in the given order (default: all, by id).
         rate_hz: the control rate, when known: writes ``timestamp = step / rate_hz``.
+        quaternions: further quaternion fields, a spec ``"KEY[a:b][:ORDER],..."`` or a list
+            (`rfmp_rl.data.quaternions`): each episode's first sample is put at ``w >= 0``,
+            then its signs are made continuous.
+        raw_quaternion_signs: keep the recorded quaternion signs.
 
     Returns:
         ``(episodes, manifest)`` (``format="minari"``; ``extra`` holds the dataset's
@@ -126,6 +137,7 @@ def read_minari(
     """
     import h5py
 
+    quats = parse_quaternion_fields(quaternions)
     folder = minari_dataset_path(source)
     file = str(folder / "main_data.hdf5")
     metadata: dict[str, Any] = {}
@@ -178,4 +190,6 @@ def read_minari(
             episode = make_episode(arrays, file=file, episode=name)
             manifest.add(episode, name=name)
             out.append(episode)
+    if quats:
+        canonicalize_episode_quaternions(out, manifest, quats, raw=raw_quaternion_signs)
     return out, manifest

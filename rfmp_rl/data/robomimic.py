@@ -53,6 +53,12 @@ from rfmp_rl.data.episodes import (
     make_episode,
     step_timestamps,
 )
+from rfmp_rl.data.quaternions import (
+    QuaternionField,
+    canonicalize_episode_quaternions,
+    parse_quaternion_fields,
+    robomimic_quaternion_fields,
+)
 from rfmp_rl.keys import TIMESTAMP
 
 if TYPE_CHECKING:  # pragma: no cover
@@ -189,6 +195,8 @@ def read_robomimic(
     filter_key: str | None = None,
     with_next_obs: bool = False,
     load_images: bool = True,
+    quaternions: str | Sequence[str | QuaternionField] | None = None,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read the demos of a robomimic HDF5 file, in index order, as episodes.
 
@@ -202,6 +210,12 @@ def read_robomimic(
         load_images: ``False`` skips image keys (per-step rank >= 3, ``(H, W, C)``), also when
             ``obs_keys`` names them; the skipped keys are listed in
             ``manifest.extra["skipped_obs_keys"]``.
+        quaternions: quaternion fields besides the observed ``*quat`` keys, which are always
+            canonicalised (xyzw, robosuite's order) — e.g. ``"action[3:7]"`` for absolute-pose
+            actions with an xyzw quaternion. A spec ``"KEY[a:b][:ORDER],..."`` or a list
+            (`rfmp_rl.data.quaternions`): each episode's first sample is put at ``w >= 0``,
+            then its signs are made continuous.
+        raw_quaternion_signs: keep the recorded quaternion signs.
 
     Returns:
         ``(episodes, manifest)``. Each episode is a TensorDict of batch ``[T]`` holding
@@ -246,6 +260,7 @@ def read_robomimic(
         obs_keys = [obs_keys]
     if obs_keys is not None:
         obs_keys = list(dict.fromkeys(obs_keys))
+    extra_quats = parse_quaternion_fields(quaternions)
     if not os.path.exists(file):
         raise DataError("no such file", file=file)
     try:
@@ -297,6 +312,9 @@ def read_robomimic(
                 f"attribute total = {total}, but the demos hold {manifest.steps} steps",
                 file=file, key="total",
             )
+    known = robomimic_quaternion_fields(episodes[0])
+    fields = known + [q for q in extra_quats if q.key not in {k.key for k in known}]
+    canonicalize_episode_quaternions(episodes, manifest, fields, raw=raw_quaternion_signs)
     manifest.extra.update(
         env_args=env_args,
         filter_key=filter_key,

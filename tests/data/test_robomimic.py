@@ -99,6 +99,13 @@ def check_demo(ep: TensorDict, demo: dict, *, next_obs: bool = False, images: bo
                 continue
             got = ep[group, key]
             assert got.dtype == torch.from_numpy(value).dtype
+            if key.endswith("quat"):  # the same rotations, w >= 0 first, then continuous
+                signs = (got.numpy() * value).sum(-1, keepdims=True) / (value * value).sum(
+                    -1, keepdims=True)
+                np.testing.assert_allclose(np.abs(signs), 1.0, rtol=1e-6)
+                np.testing.assert_array_equal(got.numpy(), np.sign(signs) * value)
+                assert got[0, 3] >= 0 and ((got[1:] * got[:-1]).sum(-1) >= 0).all()
+                continue
             assert torch.equal(got, torch.from_numpy(value))
     if not next_obs:
         assert "next_obs" not in ep

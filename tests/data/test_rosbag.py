@@ -1063,3 +1063,31 @@ def test_rosbag_module_re_exports_the_ros_package():
     for name in rosbag.__all__:
         assert getattr(rosbag, name) is getattr(ros, name), name
     assert set(rosbag.__all__) == set(ros.__all__)
+
+
+def test_an_episode_recorded_as_minus_q_is_canonicalised_like_the_others(tmp_path):
+    folder = tmp_path / "bags"
+    folder.mkdir()
+    for name, sign in (("a_plus", 1.0), ("b_minus", -1.0)):
+        bag = Bag("mcap")
+        for k in range(21):
+            t = 0.05 * k
+            ns = T0 + round(t * SEC)
+            bag.pose("/cmd_pose", ns, ns, position(t), sign * rotation(t))
+            bag.scalar("/gripper_cmd", ns, gripper(t), "Float64")
+        bag.write(folder / name)
+    config = {"rate_hz": 10, "action": ["/cmd_pose", "/gripper_cmd"],
+              "action_manifold": "R3 x S3 x R1", "topics": {"/cmd_pose": "cmd"}}
+    episodes, manifest = read_rosbags(folder, config)
+    expected = np.array([rotation(t) for t in np.arange(11) / 10])
+    for ep in episodes:  # both +q: in the flat vector and under the nested key
+        np.testing.assert_allclose(ep["action"][:, 3:7].numpy(), expected, atol=1e-5)
+        np.testing.assert_allclose(ep["cmd", "orientation"].numpy(), expected, atol=1e-5)
+    fields = manifest.extra["quaternions"]["fields"]
+    assert [(f["key"], f["columns"], f["first_flipped"]) for f in fields] == [
+        ("cmd/orientation", None, 1), ("action", [3, 7], 1)]
+    raw, manifest = read_rosbags(folder, config, raw_quaternion_signs=True)
+    np.testing.assert_allclose(raw[1]["action"][:, 3:7].numpy(), -expected, atol=1e-5)
+    np.testing.assert_allclose(raw[1]["cmd", "orientation"].numpy(), -expected, atol=1e-5)
+    np.testing.assert_allclose(raw[0]["action"][:, 3:7].numpy(), expected, atol=1e-5)
+    assert manifest.extra["quaternions"]["raw_signs"] is True

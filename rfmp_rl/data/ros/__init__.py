@@ -51,7 +51,11 @@ when they fall on the grid). Values on it are:
 * orientations: normalised, made hemisphere-continuous (``q_k -> -q_k`` when its dot product
   with ``q_{k-1}`` is negative, `rfmp_rl.manifolds.quaternion.hemisphere_continuous`), slerped
   (`resample_slerp`), then the whole episode's sign is chosen so that ``w >= 0`` at its first
-  step — so a sign flip in the recording disappears;
+  step — so a sign flip in the recording, or an episode recorded as ``-q``, disappears
+  (`rfmp_rl.data.quaternions`; ``raw_quaternion_signs`` / ``--raw-quaternion-signs`` keeps the
+  first sample's recorded sign). This applies to pose orientations under ``topics`` and in
+  flat vectors alike; ``Manifest.extra["quaternions"]`` lists the fields and counts the
+  episodes negated;
 * images and bools: the nearest message in time (`nearest_indices`, ties to the earlier one).
 
 **Gaps.** A stream that goes longer than ``max_gap_s`` without a message inside the recording's

@@ -16,6 +16,7 @@ import torch
 from tensordict import TensorDict
 
 from rfmp_rl.data.episodes import DataError, Manifest, make_episode
+from rfmp_rl.data.quaternions import QuaternionField, canonicalize_episode_quaternions
 from rfmp_rl.data.ros.config import TIMESTAMP, RosbagConfig, TopicConfig
 from rfmp_rl.data.ros.resample import nearest_indices, resample_linear, resample_slerp
 from rfmp_rl.manifolds import Euclidean, Product, Sphere, parse_manifold
@@ -617,8 +618,8 @@ def _resample(
                     "quaternion",
                     file=file, topic=topic, key=s.spec.key, episode=name, step=index,
                 )
+            # continuous here (slerp needs it); w >= 0 at the first step in read_rosbags
             quats = resample_slerp(times, quats / norms[:, None], grid)
-            quats = torch.where(quats[:1, 3:] < 0, -quats, quats)  # w >= 0 at the first step
             values[topic] = torch.cat([resample_linear(times, raw[:, :3], grid), quats], dim=-1)
         else:
             nearest = nearest_indices(times, grid).numpy()
@@ -798,6 +799,7 @@ def read_rosbags(
     *,
     rate_hz: float | None = None,
     skip_bad: bool = False,
+    raw_quaternion_signs: bool = False,
 ) -> tuple[list[TensorDict], Manifest]:
     """Read ROS 1 / ROS 2 bags into episodes resampled to one control rate.
 
@@ -812,6 +814,9 @@ def read_rosbags(
         rate_hz: the control rate; overrides ``config.rate_hz``.
         skip_bad: skip a bag that raises `DataError` (corrupt, a missing topic, a gap with
             ``on_gap: error``, ...) and list it in ``manifest.skipped`` instead of raising.
+        raw_quaternion_signs: keep each episode's orientations in the hemisphere of its first
+            recorded sample instead of ``w >= 0`` (`rfmp_rl.data.quaternions`); the samples
+            are still made continuous before slerp, which needs it.
 
     Returns:
         The episodes (``TensorDict`` of batch ``[T]``), in bag order and, within a bag, in
@@ -900,4 +905,16 @@ def read_rosbags(
     if not episodes:
         listed = "; ".join(f"{s['file']}: {s['reason']}" for s in manifest.skipped)
         raise DataError(f"no readable bag among {len(bags)}: {listed}", file=source)
+    canonicalize_episode_quaternions(episodes, manifest, _quaternion_fields(cfg, manifest),
+                                     raw=raw_quaternion_signs)
     return episodes, manifest
+
+
+def _quaternion_fields(cfg: RosbagConfig, manifest: Manifest) -> list[QuaternionField]:
+    """Pose orientations (xyzw): ``<key>/orientation`` and the S3 columns of flat vectors."""
+    fields = [QuaternionField(f"{spec.key}/orientation") for spec in cfg.topics.values()
+              if f"{spec.key}/orientation" in manifest.keys]
+    for key, columns in manifest.extra.get("vectors", {}).items():
+        fields += [QuaternionField(key, (c["start"] + 3, c["start"] + 7)) for c in columns
+                   if c["kind"] == "pose"]
+    return fields
