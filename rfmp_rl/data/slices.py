@@ -15,6 +15,7 @@ from tensordict.utils import NestedKey
 from torchrl.envs.transforms import Transform
 
 from rfmp_rl import keys
+from rfmp_rl.data.episodes import key_name, parse_key
 
 __all__ = ["SlicesToChunks"]
 
@@ -31,8 +32,9 @@ class SlicesToChunks(Transform):
 
     Args:
         horizon: T_p.
-        observation_keys: keys stacked into windows (each ``(..., D)`` -> ``(B, 2, D)``).
-        action_key: the action entry.
+        observation_keys: keys stacked into windows (each ``(..., D)`` -> ``(B, 2, D)``);
+            ``"a/b"`` (the manifest's form) or ``("a", "b")``.
+        action_key: the action entry, in either form.
 
     Example:
         >>> from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
@@ -53,8 +55,8 @@ class SlicesToChunks(Transform):
     ) -> None:
         super().__init__()
         self.horizon = int(horizon)
-        self.observation_keys = list(observation_keys or [keys.OBSERVATION])
-        self.action_key = action_key
+        self.observation_keys = [parse_key(k) for k in observation_keys or [keys.OBSERVATION]]
+        self.action_key = parse_key(action_key)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         length = self.horizon + 1
@@ -63,6 +65,12 @@ class SlicesToChunks(Transform):
                 f"SlicesToChunks: a batch of {tensordict.numel()} steps is not a whole number of "
                 f"slices of length T_p + 1 = {length}; set SliceSampler(slice_len={length})"
             )
+        present = tensordict.keys(include_nested=True, leaves_only=True)
+        for key in [*self.observation_keys, self.action_key]:
+            if key not in present:
+                listed = ", ".join(sorted(key_name(k) for k in present))
+                raise KeyError(f"SlicesToChunks: no entry {key_name(key)!r} in the sampled "
+                               f"steps (keys: {listed})")
         slices = tensordict.reshape(-1, length)  # (B, T_p + 1)
         out = TensorDict({}, batch_size=slices.batch_size[:1])
         for key in self.observation_keys:

@@ -115,3 +115,24 @@ def test_unknown_keys_are_named_in_the_slash_form():
     rb = store.replay_buffer(4, observation_keys=["obs/grip"], batch_size=2)
     with pytest.raises(KeyError, match=r"no entry 'obs/grip'.*obs/gripper"):
         rb.sample()
+
+
+def test_slices_to_chunks_takes_slash_keys_and_names_missing_ones_in_that_form():
+    from rfmp_rl.data.slices import SlicesToChunks
+
+    n = 10
+    steps = TensorDict({"obs": TensorDict({"gripper": torch.arange(n * 1.0)[:, None]}, [n]),
+                        "action": torch.zeros(n, 2)}, [n])
+    out = SlicesToChunks(4, observation_keys=["obs/gripper"])(steps)
+    assert out["obs", "gripper"].shape == (2, 2, 1)
+    assert out["obs", "gripper"][1, :, 0].tolist() == [5.0, 6.0]
+    with pytest.raises(KeyError, match=r"no entry 'obs/grip'.*keys: action, obs/gripper"):
+        SlicesToChunks(4, observation_keys=["obs/grip"])(steps)
+
+
+def test_a_missing_action_key_is_named_in_the_slash_form():
+    store = _nested_store()
+    rb = store.replay_buffer(4, observation_keys=["obs/gripper"], action_key="act/pose",
+                             batch_size=2)
+    with pytest.raises(KeyError, match=r"no entry 'act/pose'.*obs/eef_pos, obs/gripper"):
+        rb.sample()
