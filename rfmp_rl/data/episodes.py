@@ -167,7 +167,8 @@ def make_episode(
 
     Raises:
         DataError: no arrays, an empty episode, arrays of different lengths (naming the first
-            key that disagrees and the reference key), a NaN/inf value (naming key and step), or
+            key whose length differs from the one most arrays share, and a key with that
+            length), a NaN/inf value (naming key and step), or
             a ``timestamp`` that is not float64 ``(T,)`` from 0.0, strictly increasing.
 
     Example:
@@ -182,12 +183,14 @@ def make_episode(
     """
     if not arrays:
         raise DataError("no arrays to build an episode from", file=file, episode=episode)
-    ref_key, length = None, None
-    for key, value in arrays.items():
-        n = int(value.shape[0]) if value.ndim > 0 else 0
-        if length is None:
-            ref_key, length = key, n
-        elif n != length:
+    lengths = {key: int(value.shape[0]) if value.ndim > 0 else 0 for key, value in arrays.items()}
+    counts = list(lengths.values())
+    # The length most arrays share is the episode's (ties: the first key's), so the array that
+    # disagrees is the one named, whichever comes first.
+    length = max(counts, key=lambda n: (counts.count(n), -counts.index(n)))
+    ref_key = next(key for key, n in lengths.items() if n == length)
+    for key, n in lengths.items():
+        if n != length:
             raise DataError(  # the step is the first one the shorter array lacks
                 f"{n} steps, but {key_name(ref_key)} has {length} steps",
                 file=file, key=key_name(key), episode=episode, step=min(n, length),

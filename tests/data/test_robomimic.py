@@ -470,6 +470,16 @@ def test_mismatched_lengths(tmp_path):
                    "actions has 50 steps")
 
 
+def test_short_actions_are_named_not_the_rewards(tmp_path):
+    demo = demo_arrays(50, 0)
+    demo["actions"] = demo["actions"][:48]
+    path = write_fixture(tmp_path / "len.hdf5", {"demo_0": demo})
+    with pytest.raises(DataError) as exc:
+        read_robomimic(path)
+    assert_message(exc, path, "key actions", "episode demo_0", "step 48", "48 steps",
+                   "rewards has 50 steps")
+
+
 def test_empty_demo(tmp_path):
     demo = demo_arrays(3, 0)
     empty = {k: ({kk: vv[:0] for kk, vv in v.items()} if isinstance(v, dict) else v[:0])

@@ -40,7 +40,8 @@ def test_out_naming_a_file_is_refused_before_reading(tmp_path, capsys):
     target.write_bytes(b"precious")
     assert main(["lasa", "LShape", "--out", str(target)]) == 2
     err = capsys.readouterr()
-    assert "--out names a file" in err.err and "Traceback" not in err.err
+    assert err.err.startswith("rfmp-convert: error: ") and "--out names a file" in err.err
+    assert "Traceback" not in err.err and "episodes" not in err.out  # refused before the read
     assert target.read_bytes() == b"precious"
 
 
