@@ -839,7 +839,8 @@ def read_rosbags(
     cfg = config if isinstance(config, RosbagConfig) else RosbagConfig.from_dict(config)
     rate = rate_hz if rate_hz is not None else cfg.rate_hz
     if rate is None or not (math.isfinite(float(rate)) and float(rate) > 0):
-        raise ValueError(f"read_rosbags needs a positive rate_hz (config or argument), got {rate}")
+        raise ValueError(f"no control rate: set rate_hz in the topic config (a positive number "
+                         f"of Hz; read_rosbags also takes rate_hz=), got {rate}")
     rate = float(rate)
     if isinstance(paths, str | os.PathLike):
         paths = [paths]
