@@ -146,6 +146,10 @@ def main(argv: list[str] | None = None) -> int:
     except (DataError, FileNotFoundError, ValueError, ImportError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)
         return 2
+    except (KeyError, TypeError, PermissionError) as err:  # a reader's unforeseen input
+        print(f"rfmp-convert: error: cannot read {args.source}: {type(err).__name__}: {err}",
+              file=sys.stderr)
+        return 2
     print(manifest)
     if not args.dry_run:
         from rfmp_rl.data.store import DemonstrationStore

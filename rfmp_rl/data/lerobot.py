@@ -52,8 +52,9 @@ first value when that is not 0.0 (the video lookup still uses the recorded value
 
 Bad input — a missing ``meta/info.json``, an unknown ``codebase_version``, a missing parquet or
 mp4 file, a column whose size disagrees with its feature shape, timestamps not increasing, an
-undecodable image or video — raises `DataError` naming the file and, where known, the feature,
-episode and step.
+undecodable image or video, an image that is not 8-bit (e.g. a 16-bit depth PNG), a tasks row
+without ``task``/``task_index``, a store key nested under another — raises `DataError` naming
+the file and, where known, the feature, episode and step.
 """
 
 from __future__ import annotations
@@ -221,8 +222,13 @@ def _open_dataset(root: Path) -> _Dataset:
         rows = _read_jsonl(meta / "episodes.jsonl")
         tasks = {}
         if (meta / "tasks.jsonl").exists():
-            tasks = {int(r["task_index"]): str(r["task"])
-                     for r in _read_jsonl(meta / "tasks.jsonl")}
+            for n, r in enumerate(_read_jsonl(meta / "tasks.jsonl")):  # blank lines skipped
+                try:
+                    tasks[int(r["task_index"])] = str(r["task"])
+                except (KeyError, TypeError, ValueError) as err:
+                    raise DataError(f"task row {n + 1} ({json.dumps(r)}) needs an integer "
+                                    f"'task_index' and a 'task' (bad or missing: {err})",
+                                    file=str(meta / "tasks.jsonl")) from err
     episodes_file = str(meta / ("episodes" if version.startswith("v3") else "episodes.jsonl"))
     for row in rows:
         if "episode_index" not in row or "length" not in row:
@@ -263,6 +269,12 @@ def _select_features(
     if dupes:
         raise DataError(f"two features map to the store key {dupes[0]!r}; rename one with "
                         "--keys name=store/key", file=ds.info_file)
+    for outer in stored:
+        for inner in stored:
+            if inner.startswith(outer + "/"):
+                raise DataError(f"the store key {inner!r} would be nested under the store key "
+                                f"{outer!r}; rename one with --keys name=store/key",
+                                file=ds.info_file)
     return chosen
 
 
@@ -281,7 +293,9 @@ def _image_hwc(ds: _Dataset, name: str) -> tuple[int, int, int]:
         raise DataError(f"image shape must have 3 dims, got {list(shape)}", file=ds.info_file,
                         key=name)
     names = ds.features[name].get("names") or []
-    if names and str(names[0]).lower().startswith("channel"):
+    if isinstance(names, Mapping):  # {"axes": [...]} in some datasets
+        names = names.get("axes") or []
+    if isinstance(names, list) and names and str(names[0]).lower().startswith("channel"):
         return shape[1], shape[2], shape[0]
     return shape  # (height, width, channels), as LeRobot writes it
 
@@ -342,6 +356,9 @@ def _images(table, name: str, hwc: tuple[int, int, int], *, file: str,
         except Exception as err:  # PIL raises several types for bad bytes
             raise DataError(f"cannot decode the image: {err}", file=file, key=name,
                             episode=episode, step=step) from err
+        if pixels.dtype != np.uint8:
+            raise DataError(f"a {pixels.dtype} image: only 8-bit images are supported",
+                            file=file, key=name, episode=episode, step=step)
         if pixels.ndim == 2:
             pixels = pixels[:, :, None]
         if pixels.shape != hwc:
