@@ -1063,3 +1063,31 @@ def test_rosbag_module_re_exports_the_ros_package():
     for name in rosbag.__all__:
         assert getattr(rosbag, name) is getattr(ros, name), name
     assert set(rosbag.__all__) == set(ros.__all__)
+
+
+def _crashed_recordings(tmp_path):
+    """A flat folder: one good ROS 1 bag, an unfinished ROS 1 bag (``.bag.active``) and a
+    rosbag2 folder whose recorder died before writing ``metadata.yaml``."""
+    folder = tmp_path / "flat"
+    folder.mkdir()
+    gap_bag("ros1").write(folder / "ep1")
+    gap_bag("ros1").write(folder / "tmp")
+    (folder / "tmp.bag").rename(folder / "ep2.bag.active")
+    gap_bag("sqlite3").write(folder / "ep3")
+    (folder / "ep3" / "metadata.yaml").unlink()
+    return folder
+
+
+def test_unfinished_recordings_in_a_folder_are_not_left_out_silently(tmp_path):
+    folder = _crashed_recordings(tmp_path)
+    with pytest.raises(DataError, match="ep2.bag.active") as err:
+        read_rosbags(folder, GAP_CONFIG)
+    message = str(err.value)
+    assert "rosbag reindex" in message and "ep3" in message and "ros2 bag reindex" in message
+    episodes, manifest = read_rosbags(folder, GAP_CONFIG, skip_bad=True)
+    assert manifest.extra["files"] == [str(folder / "ep1.bag")] and len(episodes) == 1
+    skipped = {item["file"]: item["reason"] for item in manifest.skipped}
+    assert sorted(skipped) == [str(folder / "ep2.bag.active"), str(folder / "ep3")]
+    assert "rosbag reindex" in skipped[str(folder / "ep2.bag.active")]
+    assert "ros2 bag reindex" in skipped[str(folder / "ep3")]
+    assert (folder / "ep2.bag.active").exists() and (folder / "ep3").is_dir()  # left as they are
