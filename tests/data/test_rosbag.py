@@ -1091,3 +1091,16 @@ def test_unfinished_recordings_in_a_folder_are_not_left_out_silently(tmp_path):
     assert "rosbag reindex" in skipped[str(folder / "ep2.bag.active")]
     assert "ros2 bag reindex" in skipped[str(folder / "ep3")]
     assert (folder / "ep2.bag.active").exists() and (folder / "ep3").is_dir()  # left as they are
+
+
+def test_convert_command_passes_rate_to_the_ros_reader(tmp_path, capsys):
+    import yaml
+
+    from rfmp_rl.data.convert import main as convert_main
+
+    path = gap_bag("ros1").write(tmp_path / "demo")
+    config = tmp_path / "topics.yaml"
+    config.write_text(yaml.safe_dump(GAP_CONFIG))  # 10 Hz
+    assert convert_main(["ros", str(path), "--config", str(config), "--rate", "5",
+                         "--dry-run"]) == 0
+    assert ", 5 Hz" in capsys.readouterr().out
