@@ -111,9 +111,13 @@ def read_source(
 
 def _indices(text: str) -> list[int]:
     try:
-        return [int(part) for part in text.split(",") if part.strip()]
+        indices = [int(part) for part in text.split(",") if part.strip()]
     except ValueError as err:
         raise ValueError(f"--episodes takes comma-separated integers, got {text!r}") from err
+    twice = sorted({i for i in indices if indices.count(i) > 1})
+    if twice:
+        raise ValueError(f"--episodes lists episode {twice[0]} more than once ({text!r})")
+    return indices
 
 
 def main(argv: list[str] | None = None) -> int:

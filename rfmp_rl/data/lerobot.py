@@ -176,6 +176,20 @@ def _read_table(path: Path, columns: Sequence[str] | None = None):
         raise DataError(f"cannot read as parquet: {err}", file=str(path)) from err
 
 
+def _check_episode_rows(rows: list[dict[str, Any]], file: Path) -> None:
+    """Every episode row has an integer ``episode_index`` and ``length``."""
+    for n, row in enumerate(rows):
+        for name in ("episode_index", "length"):
+            if name not in row:
+                raise DataError(f"episode row {n + 1} lacks {name!r}", file=str(file), key=name)
+            try:
+                if int(row[name]) != float(row[name]):
+                    raise ValueError
+            except (TypeError, ValueError, OverflowError) as err:
+                raise DataError(f"episode row {n + 1}: {name} must be an integer, got "
+                                f"{row[name]!r}", file=str(file), key=name) from err
+
+
 def _open_dataset(root: Path) -> _Dataset:
     info_path = root / "meta" / "info.json"
     if not root.is_dir():
@@ -212,6 +226,7 @@ def _open_dataset(root: Path) -> _Dataset:
             table = _read_table(file)
             keep = [c for c in table.column_names if not c.startswith("stats/")]
             rows.extend(table.select(keep).to_pylist())
+            _check_episode_rows(rows[len(rows) - table.num_rows:], file)
         tasks = {}
         if (meta / "tasks.parquet").exists():
             for row in _read_table(meta / "tasks.parquet").to_pylist():
@@ -220,6 +235,7 @@ def _open_dataset(root: Path) -> _Dataset:
                     tasks[int(row["task_index"])] = text
     else:
         rows = _read_jsonl(meta / "episodes.jsonl")
+        _check_episode_rows(rows, meta / "episodes.jsonl")
         tasks = {}
         if (meta / "tasks.jsonl").exists():
             for n, r in enumerate(_read_jsonl(meta / "tasks.jsonl")):  # blank lines skipped
@@ -229,10 +245,6 @@ def _open_dataset(root: Path) -> _Dataset:
                     raise DataError(f"task row {n + 1} ({json.dumps(r)}) needs an integer "
                                     f"'task_index' and a 'task' (bad or missing: {err})",
                                     file=str(meta / "tasks.jsonl")) from err
-    episodes_file = str(meta / ("episodes" if version.startswith("v3") else "episodes.jsonl"))
-    for row in rows:
-        if "episode_index" not in row or "length" not in row:
-            raise DataError("an episode row lacks episode_index or length", file=episodes_file)
     rows.sort(key=lambda r: int(r["episode_index"]))
     return _Dataset(root, info, version, fps, features, rows, tasks)
 
@@ -457,12 +469,16 @@ def _episode_table(ds: _Dataset, row: dict[str, Any], columns: list[str],
     if path not in cache:
         if len(cache) > 2:  # v3 episodes come in file order: keep a few tables
             cache.pop(next(iter(cache)))
-        table = _read_table(path)
-        missing = [c for c in columns if c not in table.column_names]
+        _, pq, _ = _imports()
+        try:
+            names = pq.read_schema(path).names
+        except Exception:  # missing or unreadable: _read_table says which
+            names = _read_table(path).column_names
+        missing = [c for c in columns if c not in names]
         if missing:
             raise DataError("column missing from the parquet file", file=str(path),
                             key=missing[0], episode=ep)
-        cache[path] = table.select(columns)
+        cache[path] = _read_table(path, columns)  # only the selected features' columns
     table = cache[path]
     mask = pc.equal(table.column("episode_index"), pa.scalar(ep, table.schema.field(
         "episode_index").type))
@@ -519,7 +535,10 @@ def read_lerobot(
         wanted = sorted(by_index)
     else:
         wanted = [int(e) for e in episodes]
-        for e in wanted:
+        for n, e in enumerate(wanted):
+            if e in wanted[:n]:
+                raise DataError(f"episode {e} is asked for twice", file=str(root / "meta"),
+                                episode=e)
             if e not in by_index:
                 raise DataError(f"episode {e} is not in the dataset (it has "
                                 f"{len(by_index)} episodes, indices {min(by_index, default=0)}.."

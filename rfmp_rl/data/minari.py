@@ -158,7 +158,9 @@ def read_minari(
     with f:
         ids = {int(m.group(1)): name for name in f if (m := _EPISODE_RE.match(name))}
         wanted = sorted(ids) if episodes is None else [int(e) for e in episodes]
-        for e in wanted:
+        for n, e in enumerate(wanted):
+            if e in wanted[:n]:
+                raise DataError(f"episode {e} is asked for twice", file=file, episode=e)
             if e not in ids:
                 raise DataError(f"no episode {e} (the file holds {len(ids)})", file=file,
                                 episode=e)

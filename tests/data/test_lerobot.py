@@ -371,3 +371,53 @@ def test_cli_turns_reader_key_errors_into_one_line(tmp_path, monkeypatch, capsys
     err = capsys.readouterr().err
     assert err.startswith("rfmp-convert: error:") and "features" in err and len(
         err.strip().splitlines()) == 1
+
+
+def test_duplicate_episode_indices_are_refused(tmp_path, capsys):
+    root = write_lerobot(tmp_path / "d", make_episodes([3, 4], FPS), version="v2.1", fps=FPS)
+    with pytest.raises(DataError, match="episode 1 is asked for twice"):
+        read_lerobot(root, episodes=[1, 0, 1])
+    assert main(["lerobot", str(root), "--episodes", "1,1", "--dry-run"]) == 2
+    assert "--episodes" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_non_integer_episode_length_names_file_and_field(version, tmp_path):
+    root = write_lerobot(tmp_path / version, make_episodes([3, 4], FPS), version=version,
+                         fps=FPS)
+    if version == "v2.1":
+        path = root / "meta" / "episodes.jsonl"
+        rows = [json.loads(line) for line in path.read_text().splitlines()]
+        rows[1]["length"] = "four"
+        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    else:
+        import pyarrow as pa
+
+        path = root / "meta" / "episodes" / "chunk-000" / "file-000.parquet"
+        table = pq.read_table(path)
+        i = table.column_names.index("length")
+        table = table.set_column(i, "length", pa.array(["3", "four"]))
+        pq.write_table(table, path)
+    with pytest.raises(DataError, match="length") as err:
+        read_lerobot(root)
+    assert str(path) in str(err.value)
+    assert "'four'" in str(err.value)
+
+
+def test_only_the_selected_columns_are_read(tmp_path, monkeypatch):
+    import rfmp_rl.data.lerobot as lerobot
+
+    episodes = make_episodes([3], FPS, image_key=IMAGE, size=8)
+    root = write_lerobot(tmp_path / "d", episodes, version="v2.1", fps=FPS, image_keys=[IMAGE])
+    asked = []
+    real = lerobot._read_table
+
+    def spy(path, columns=None):
+        asked.append((path.name, columns))
+        return real(path, columns)
+
+    monkeypatch.setattr(lerobot, "_read_table", spy)
+    (ep,), _ = read_lerobot(root, keys="observation.state")
+    data = [columns for name, columns in asked if name.startswith("episode_")]
+    assert data and IMAGE not in data[0] and "observation.state" in data[0]
+    np.testing.assert_array_equal(ep["obs", "state"].numpy(), episodes[0]["observation.state"])

@@ -171,3 +171,8 @@ def test_text_observations_are_skipped_and_listed(tmp_path, capsys):
     assert "observation/mission: not stored" in capsys.readouterr().out
     stored = DemonstrationStore.load(tmp_path / "store")
     assert stored.manifest.extra["skipped_keys"] == manifest.extra["skipped_keys"]
+
+
+def test_duplicate_episode_ids_are_refused(minari_root):
+    with pytest.raises(DataError, match="episode 1 is asked for twice"):
+        read_minari(DATASET_ID, episodes=[1, 1])
