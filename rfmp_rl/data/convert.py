@@ -32,6 +32,16 @@ __all__ = ["read_source", "main"]
 
 FORMATS = ("dp_zarr", "robomimic", "ros", "lasa", "lerobot", "minari")
 
+#: The formats that read each option; the others refuse it (an ignored option is a silent
+#: wrong result). Minari stores every numeric entry, so it takes no --keys.
+_READ_BY = {
+    "--keys": ("dp_zarr", "robomimic", "lerobot"),
+    "--filter": ("robomimic",),
+    "--config": ("ros",),
+    "--episodes": ("lerobot", "minari"),
+    "--rate": ("dp_zarr", "minari", "ros"),
+}
+
 ROS_HELP = """ROS bags: --config names a YAML file that maps topics to keys and sets the control
 rate, flat action/observation vectors, and what a gap in a stream does (max_gap_s, on_gap). Every
 field is described in README.md, section "ROS bags: the topic config", and in the docstring of
@@ -58,7 +68,8 @@ def read_source(
 ) -> tuple[list[TensorDict], Manifest]:
     """Dispatch to the reader of ``fmt`` (one of `FORMATS`). ``episodes`` selects episodes by
     the source's index (``lerobot``, ``minari``); ``rate_hz`` is the control rate of a source
-    that records none (``minari``, ``dp_zarr``).
+    that records none (``minari``, ``dp_zarr``) or, for ``ros``, overrides the config's
+    ``rate_hz``. An option the format does not read raises `ValueError`.
 
     ``skip_bad`` (ROS only) skips unreadable bags and lists them in ``manifest.skipped``.
     ``quaternions`` names quaternion fields the reader cannot know (``"action[3:7],obs/q:wxyz"``,
@@ -70,11 +81,12 @@ def read_source(
         >>> manifest.format, manifest.episodes
         ('lasa', 7)
     """
-    if episodes is not None and fmt not in ("lerobot", "minari"):
-        raise ValueError(f"{fmt}: --episodes is read by the lerobot and minari formats only")
-    if rate_hz is not None and fmt not in ("dp_zarr", "minari"):
-        raise ValueError(f"{fmt}: --rate is read by the dp_zarr and minari formats only (the "
-                         "others record their rate)")
+    given = {"--keys": keys, "--filter": filter_key, "--config": config, "--episodes": episodes,
+             "--rate": rate_hz}
+    for flag, value in given.items():
+        if value is not None and fmt in FORMATS and fmt not in _READ_BY[flag]:
+            raise ValueError(f"{fmt}: {flag} is not read by this format (it is read by "
+                             f"{', '.join(_READ_BY[flag])} only)")
     if quaternions is not None and fmt in ("ros", "lasa"):
         raise ValueError(f"{fmt}: --quaternions is not read (" + (
             "pose orientations are known from the message types)" if fmt == "ros" else
@@ -94,8 +106,8 @@ def read_source(
         if config is None:
             raise ValueError("ros: --config topics.yaml is required (it maps topics to keys)")
         # A bag, a rosbag2 folder, or a folder of bags (read in name order, one episode each).
-        return read_rosbags([source], load_rosbag_config(config), skip_bad=skip_bad,
-                            raw_quaternion_signs=raw_quaternion_signs)
+        return read_rosbags([source], load_rosbag_config(config), rate_hz=rate_hz,
+                            skip_bad=skip_bad, raw_quaternion_signs=raw_quaternion_signs)
     if fmt == "lasa":
         from rfmp_rl.data.lasa import read_lasa
 
@@ -107,17 +119,19 @@ def read_source(
     if fmt == "minari":
         from rfmp_rl.data.minari import read_minari
 
-        if keys is not None:
-            raise ValueError("minari: --keys is not read (every numeric entry is stored)")
         return read_minari(source, episodes=episodes, rate_hz=rate_hz, **quats)
     raise ValueError(f"unknown format {fmt!r}; choose one of {', '.join(FORMATS)}")
 
 
 def _indices(text: str) -> list[int]:
     try:
-        return [int(part) for part in text.split(",") if part.strip()]
+        indices = [int(part) for part in text.split(",") if part.strip()]
     except ValueError as err:
         raise ValueError(f"--episodes takes comma-separated integers, got {text!r}") from err
+    twice = sorted({i for i in indices if indices.count(i) > 1})
+    if twice:
+        raise ValueError(f"--episodes lists episode {twice[0]} more than once ({text!r})")
+    return indices
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -134,7 +148,8 @@ def main(argv: list[str] | None = None) -> int:
                         "/ LeRobot features, each optionally renamed: name=store/key)")
     parser.add_argument("--episodes", help="LeRobot / Minari: comma-separated episode indices")
     parser.add_argument("--rate", type=float, help="control rate in Hz of a source that records "
-                        "none (minari; dp_zarr, default 10): timestamps = step / rate")
+                        "none (minari; dp_zarr, default 10): timestamps = step / rate; ROS: "
+                        "overrides the config's rate_hz")
     parser.add_argument("--filter", dest="filter_key", help="robomimic mask/<filter> split")
     parser.add_argument("--config", help="ROS: the topic config YAML (see below)")
     parser.add_argument("--skip-bad", action="store_true",
@@ -169,6 +184,10 @@ def main(argv: list[str] | None = None) -> int:
         )
     except (DataError, FileNotFoundError, ValueError, ImportError) as err:
         print(f"rfmp-convert: error: {err}", file=sys.stderr)
+        return 2
+    except (KeyError, TypeError, PermissionError) as err:  # a reader's unforeseen input
+        print(f"rfmp-convert: error: cannot read {args.source}: {type(err).__name__}: {err}",
+              file=sys.stderr)
         return 2
     print(manifest)
     if not args.dry_run:

@@ -231,7 +231,9 @@ class Manifest:
             the recording the episode was cut from).
         skipped: what was read but not returned, each ``{"file", "reason"}`` (and
             ``"episode"`` for a part of a file): unreadable files, slivers between gaps.
-        extra: source metadata (env arguments, topics, split filters, ...).
+        extra: source metadata (env arguments, topics, split filters, ...); a reader that
+            leaves source entries out lists them in ``extra["skipped_keys"]`` (key -> reason),
+            printed with the manifest.
 
     Example:
         >>> m = Manifest(source="demo.h5", format="robomimic", rate_hz=20.0)
@@ -310,6 +312,8 @@ class Manifest:
                 f"    {gap['episode']} {gap['topic']}: {gap['kind']}, {gap['start_s']:.3f} s to "
                 f"{gap['end_s']:.3f} s ({gap['length_s']:.3f} s)"
             )
+        for name, reason in (self.extra.get("skipped_keys") or {}).items():
+            lines.append(f"  {name}: not stored ({reason})")
         if self.skipped:
             lines.append(f"  {len(self.skipped)} skipped:")
         for item in self.skipped:

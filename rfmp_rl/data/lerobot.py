@@ -52,8 +52,9 @@ first value when that is not 0.0 (the video lookup still uses the recorded value
 
 Bad input — a missing ``meta/info.json``, an unknown ``codebase_version``, a missing parquet or
 mp4 file, a column whose size disagrees with its feature shape, timestamps not increasing, an
-undecodable image or video — raises `DataError` naming the file and, where known, the feature,
-episode and step.
+undecodable image or video, an image that is not 8-bit (e.g. a 16-bit depth PNG), a tasks row
+without ``task``/``task_index``, a store key nested under another — raises `DataError` naming
+the file and, where known, the feature, episode and step.
 """
 
 from __future__ import annotations
@@ -180,6 +181,20 @@ def _read_table(path: Path, columns: Sequence[str] | None = None):
         raise DataError(f"cannot read as parquet: {err}", file=str(path)) from err
 
 
+def _check_episode_rows(rows: list[dict[str, Any]], file: Path) -> None:
+    """Every episode row has an integer ``episode_index`` and ``length``."""
+    for n, row in enumerate(rows):
+        for name in ("episode_index", "length"):
+            if name not in row:
+                raise DataError(f"episode row {n + 1} lacks {name!r}", file=str(file), key=name)
+            try:
+                if int(row[name]) != float(row[name]):
+                    raise ValueError
+            except (TypeError, ValueError, OverflowError) as err:
+                raise DataError(f"episode row {n + 1}: {name} must be an integer, got "
+                                f"{row[name]!r}", file=str(file), key=name) from err
+
+
 def _open_dataset(root: Path) -> _Dataset:
     info_path = root / "meta" / "info.json"
     if not root.is_dir():
@@ -216,6 +231,7 @@ def _open_dataset(root: Path) -> _Dataset:
             table = _read_table(file)
             keep = [c for c in table.column_names if not c.startswith("stats/")]
             rows.extend(table.select(keep).to_pylist())
+            _check_episode_rows(rows[len(rows) - table.num_rows:], file)
         tasks = {}
         if (meta / "tasks.parquet").exists():
             for row in _read_table(meta / "tasks.parquet").to_pylist():
@@ -224,14 +240,16 @@ def _open_dataset(root: Path) -> _Dataset:
                     tasks[int(row["task_index"])] = text
     else:
         rows = _read_jsonl(meta / "episodes.jsonl")
+        _check_episode_rows(rows, meta / "episodes.jsonl")
         tasks = {}
         if (meta / "tasks.jsonl").exists():
-            tasks = {int(r["task_index"]): str(r["task"])
-                     for r in _read_jsonl(meta / "tasks.jsonl")}
-    episodes_file = str(meta / ("episodes" if version.startswith("v3") else "episodes.jsonl"))
-    for row in rows:
-        if "episode_index" not in row or "length" not in row:
-            raise DataError("an episode row lacks episode_index or length", file=episodes_file)
+            for n, r in enumerate(_read_jsonl(meta / "tasks.jsonl")):  # blank lines skipped
+                try:
+                    tasks[int(r["task_index"])] = str(r["task"])
+                except (KeyError, TypeError, ValueError) as err:
+                    raise DataError(f"task row {n + 1} ({json.dumps(r)}) needs an integer "
+                                    f"'task_index' and a 'task' (bad or missing: {err})",
+                                    file=str(meta / "tasks.jsonl")) from err
     rows.sort(key=lambda r: int(r["episode_index"]))
     return _Dataset(root, info, version, fps, features, rows, tasks)
 
@@ -268,6 +286,12 @@ def _select_features(
     if dupes:
         raise DataError(f"two features map to the store key {dupes[0]!r}; rename one with "
                         "--keys name=store/key", file=ds.info_file)
+    for outer in stored:
+        for inner in stored:
+            if inner.startswith(outer + "/"):
+                raise DataError(f"the store key {inner!r} would be nested under the store key "
+                                f"{outer!r}; rename one with --keys name=store/key",
+                                file=ds.info_file)
     return chosen
 
 
@@ -286,7 +310,9 @@ def _image_hwc(ds: _Dataset, name: str) -> tuple[int, int, int]:
         raise DataError(f"image shape must have 3 dims, got {list(shape)}", file=ds.info_file,
                         key=name)
     names = ds.features[name].get("names") or []
-    if names and str(names[0]).lower().startswith("channel"):
+    if isinstance(names, Mapping):  # {"axes": [...]} in some datasets
+        names = names.get("axes") or []
+    if isinstance(names, list) and names and str(names[0]).lower().startswith("channel"):
         return shape[1], shape[2], shape[0]
     return shape  # (height, width, channels), as LeRobot writes it
 
@@ -347,6 +373,9 @@ def _images(table, name: str, hwc: tuple[int, int, int], *, file: str,
         except Exception as err:  # PIL raises several types for bad bytes
             raise DataError(f"cannot decode the image: {err}", file=file, key=name,
                             episode=episode, step=step) from err
+        if pixels.dtype != np.uint8:
+            raise DataError(f"a {pixels.dtype} image: only 8-bit images are supported",
+                            file=file, key=name, episode=episode, step=step)
         if pixels.ndim == 2:
             pixels = pixels[:, :, None]
         if pixels.shape != hwc:
@@ -445,12 +474,16 @@ def _episode_table(ds: _Dataset, row: dict[str, Any], columns: list[str],
     if path not in cache:
         if len(cache) > 2:  # v3 episodes come in file order: keep a few tables
             cache.pop(next(iter(cache)))
-        table = _read_table(path)
-        missing = [c for c in columns if c not in table.column_names]
+        _, pq, _ = _imports()
+        try:
+            names = pq.read_schema(path).names
+        except Exception:  # missing or unreadable: _read_table says which
+            names = _read_table(path).column_names
+        missing = [c for c in columns if c not in names]
         if missing:
             raise DataError("column missing from the parquet file", file=str(path),
                             key=missing[0], episode=ep)
-        cache[path] = table.select(columns)
+        cache[path] = _read_table(path, columns)  # only the selected features' columns
     table = cache[path]
     mask = pc.equal(table.column("episode_index"), pa.scalar(ep, table.schema.field(
         "episode_index").type))
@@ -514,7 +547,10 @@ def read_lerobot(
         wanted = sorted(by_index)
     else:
         wanted = [int(e) for e in episodes]
-        for e in wanted:
+        for n, e in enumerate(wanted):
+            if e in wanted[:n]:
+                raise DataError(f"episode {e} is asked for twice", file=str(root / "meta"),
+                                episode=e)
             if e not in by_index:
                 raise DataError(f"episode {e} is not in the dataset (it has "
                                 f"{len(by_index)} episodes, indices {min(by_index, default=0)}.."

@@ -16,7 +16,9 @@ step) and ``T`` actions per episode. Step ``i`` of the store pairs ``o_i`` with 
 action taken after observing ``o_i``) and with the ``reward``, ``terminated``, ``truncated``
 (``(T, 1)``) that action produced; the final observation ``o_T``, which no action follows, is
 dropped. Store keys: ``observation`` (``observation/<name>`` for a Dict space), ``action``,
-``reward``, ``terminated``, ``truncated``; ``infos`` are not read. Minari records no control
+``reward``, ``terminated``, ``truncated``; ``infos`` are not read. Non-numeric observation
+entries (e.g. MiniGrid's ``mission`` text) are not stored: they are listed in the manifest's
+``extra["skipped_keys"]`` (store key -> reason) and printed with it. Minari records no control
 rate, so there are no timestamps unless ``rate_hz`` is given (then ``step / rate_hz``).
 
 Why not TorchRL's ``MinariExperienceReplay`` (torchrl 0.14.1): with
@@ -33,12 +35,12 @@ import os
 import re
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 from tensordict import TensorDict
 
-from rfmp_rl.data.episodes import DataError, Manifest, make_episode, step_timestamps
+from rfmp_rl.data.episodes import DataError, Manifest, key_name, make_episode, step_timestamps
 from rfmp_rl.data.quaternions import (
     QuaternionField,
     canonicalize_episode_quaternions,
@@ -77,20 +79,29 @@ def minari_dataset_path(source: str | os.PathLike[str]) -> Path:
                     "MINARI_DATASETS_PATH", file=str(source))
 
 
-def _read(group, name: str, *, file: str, episode: str) -> Any:
+class _NonNumeric(NamedTuple):
+    """An observation leaf that is not stored (e.g. MiniGrid's ``mission`` text)."""
+
+    dtype: str
+
+
+def _read(group, name: str, *, file: str, episode: str, skip_non_numeric: bool = False) -> Any:
     import h5py
 
     item = group.get(name)
     if item is None:
         raise DataError("missing from the episode", file=file, key=name, episode=episode)
     if isinstance(item, h5py.Group):
-        return {k: _read(item, k, file=file, episode=episode) for k in item}
+        return {k: _read(item, k, file=file, episode=episode,
+                         skip_non_numeric=skip_non_numeric) for k in item}
     try:
         values = np.asarray(item[()])
     except (OSError, RuntimeError) as err:
         raise DataError(f"cannot read dataset: {err}", file=file, key=item.name,
                         episode=episode) from err
     if values.dtype.kind not in "biuf":
+        if skip_non_numeric:
+            return _NonNumeric(str(values.dtype))
         raise DataError(f"non-numeric data ({values.dtype}) is not stored", file=file,
                         key=item.name.lstrip("/"), episode=episode)
     return values
@@ -132,8 +143,8 @@ def read_minari(
 
     Raises:
         DataError: dataset not on disk; an unreadable file; an episode whose observations are
-            not one more than its actions (naming key and episode); non-numeric data; an
-            unknown episode id; NaN/inf.
+            not one more than its actions (naming key and episode); non-numeric actions,
+            rewards or flags; an unknown episode id; NaN/inf.
     """
     import h5py
 
@@ -155,10 +166,13 @@ def read_minari(
     except OSError as err:
         raise DataError(f"cannot open as HDF5: {err}", file=file) from err
     out = []
+    skipped_keys: dict[str, str] = {}
     with f:
         ids = {int(m.group(1)): name for name in f if (m := _EPISODE_RE.match(name))}
         wanted = sorted(ids) if episodes is None else [int(e) for e in episodes]
-        for e in wanted:
+        for n, e in enumerate(wanted):
+            if e in wanted[:n]:
+                raise DataError(f"episode {e} is asked for twice", file=file, episode=e)
             if e not in ids:
                 raise DataError(f"no episode {e} (the file holds {len(ids)})", file=file,
                                 episode=e)
@@ -168,12 +182,16 @@ def read_minari(
             name = ids[e]
             group = f[name]
             actions = _read(group, "actions", file=file, episode=name)
-            observations = _read(group, "observations", file=file, episode=name)
+            observations = _read(group, "observations", file=file, episode=name,
+                                 skip_non_numeric=True)
             arrays: dict[Any, np.ndarray] = {}
             for key, action in _flatten("action", actions).items():
                 arrays[key] = action
             steps = len(next(iter(arrays.values())))
             for key, obs in _flatten("observation", observations).items():
+                if isinstance(obs, _NonNumeric):
+                    skipped_keys[key_name(key)] = f"non-numeric data ({obs.dtype})"
+                    continue
                 if len(obs) != steps + 1:
                     label = "observations" if isinstance(key, str) else \
                         "observations/" + "/".join(key[1:])
@@ -190,6 +208,8 @@ def read_minari(
             episode = make_episode(arrays, file=file, episode=name)
             manifest.add(episode, name=name)
             out.append(episode)
+    if skipped_keys:
+        manifest.extra["skipped_keys"] = skipped_keys
     if quats:
         canonicalize_episode_quaternions(out, manifest, quats, raw=raw_quaternion_signs)
     return out, manifest

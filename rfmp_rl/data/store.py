@@ -249,7 +249,8 @@ STORE_FILES = ("manifest.json", "episodes.json", "storage")
 
 def check_store_destination(path: str | Path) -> None:
     """Refuse a destination `DemonstrationStore.save` must not replace: a file, or a folder that
-    holds anything but a store written by `save` (an empty folder is fine).
+    holds anything but exactly a store written by `save` (an empty folder is fine; a store with
+    files added beside it is refused, since replacing it would delete them).
 
     Raises:
         DataError: naming the path and what is in it.
@@ -261,9 +262,16 @@ def check_store_destination(path: str | Path) -> None:
     if not path.is_dir():
         return
     entries = sorted(p.name for p in path.iterdir())
-    if not entries or all((path / name).exists() for name in STORE_FILES):
+    if not entries:
         return
-    shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+    others = [name for name in entries if name not in STORE_FILES]
+    if not others and all((path / name).exists() for name in STORE_FILES):
+        return  # exactly a store: replacing it deletes nothing else
+    shown = ", ".join(others[:5]) + (", ..." if len(others) > 5 else "")
+    if all((path / name).exists() for name in STORE_FILES):
+        raise DataError(f"refusing to replace this store: the folder also holds files the store "
+                        f"did not write ({shown}), which replacing it would delete; move them "
+                        "or give another folder", file=str(path))
     raise DataError(f"refusing to replace a folder that is not a demonstration store (it holds "
                     f"{shown}); give a new or empty folder", file=str(path))
 

@@ -299,3 +299,125 @@ def test_timestamps_not_starting_at_zero_are_moved_to_zero(tmp_path):
         recorded = src["timestamp"].astype(np.float64)
         assert ep["timestamp"][0] == 0.0
         assert np.array_equal(ep["timestamp"].numpy(), recorded - recorded[0])
+
+
+def test_16_bit_png_images_are_refused_not_wrapped(tmp_path):
+    import io
+
+    import pyarrow as pa
+    from PIL import Image
+
+    episodes = make_episodes([4], FPS, image_key=IMAGE, size=16)
+    root = write_lerobot(tmp_path / "depth", episodes, version="v2.1", fps=FPS,
+                         image_keys=[IMAGE])
+    _edit_info(root, lambda info: info["features"][IMAGE].update(shape=[16, 16, 1]))
+    path = _data_file("v2.1", root, episode=0)
+    table = pq.read_table(path)
+    depth = (np.arange(16 * 16).reshape(16, 16) * 200 + 300).astype(np.uint16)
+    png = io.BytesIO()
+    Image.fromarray(depth).save(png, format="PNG")
+    column = pa.array([{"bytes": png.getvalue(), "path": None}] * 4,
+                      type=table.schema.field(IMAGE).type)
+    pq.write_table(table.set_column(table.column_names.index(IMAGE), IMAGE, column), path)
+    with pytest.raises(DataError, match="8-bit") as err:
+        read_lerobot(root)
+    assert str(path) in str(err.value) and IMAGE in str(err.value)
+    assert "episode 0" in str(err.value) and "step 0" in str(err.value)
+
+
+def test_tasks_jsonl_row_without_task(tmp_path, capsys):
+    root = write_lerobot(tmp_path / "tasks", make_episodes([3], FPS), version="v2.1", fps=FPS)
+    (root / "meta" / "tasks.jsonl").write_text(json.dumps({"task_index": 0}) + "\n")
+    with pytest.raises(DataError, match=r"tasks.jsonl: task row 1 \(\{\"task_index\": 0\}\)"):
+        read_lerobot(root)
+    assert main(["lerobot", str(root), "--dry-run"]) == 2
+    assert "tasks.jsonl" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("keys", [None, "observation.state=obs,action=obs/state/vel"])
+def test_a_store_key_nested_under_another_is_refused(tmp_path, keys):
+    episodes = make_episodes([3], FPS)
+    episodes[0]["observation.state.vel"] = episodes[0]["observation.state"].copy()
+    root = write_lerobot(tmp_path / "nested", episodes, version="v2.1", fps=FPS)
+    with pytest.raises(DataError, match="nested under") as err:
+        read_lerobot(root, keys=keys)
+    outer = "'obs/state'" if keys is None else "'obs'"
+    assert "'obs/state/vel'" in str(err.value) and outer in str(err.value)
+
+
+def test_image_feature_names_as_a_dict(tmp_path):
+    episodes = make_episodes([3], FPS, image_key=IMAGE, size=16)
+    root = write_lerobot(tmp_path / "names", episodes, version="v2.1", fps=FPS,
+                         image_keys=[IMAGE])
+    _edit_info(root, lambda info: info["features"][IMAGE].update(
+        names={"axes": ["height", "width", "channels"]}))
+    out, _ = read_lerobot(root)
+    np.testing.assert_array_equal(out[0]["obs", "image"].numpy(), episodes[0][IMAGE])
+    # channel-first, said by the dict's axes
+    _edit_info(root, lambda info: info["features"][IMAGE].update(
+        shape=[3, 16, 16], names={"axes": ["channels", "height", "width"]}))
+    out, _ = read_lerobot(root)
+    np.testing.assert_array_equal(out[0]["obs", "image"].numpy(), episodes[0][IMAGE])
+
+
+def test_cli_turns_reader_key_errors_into_one_line(tmp_path, monkeypatch, capsys):
+    import rfmp_rl.data.lerobot as lerobot
+
+    def broken(*args, **kwargs):
+        raise KeyError("features")
+
+    monkeypatch.setattr(lerobot, "read_lerobot", broken)
+    assert main(["lerobot", str(tmp_path), "--dry-run"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("rfmp-convert: error:") and "features" in err and len(
+        err.strip().splitlines()) == 1
+
+
+def test_duplicate_episode_indices_are_refused(tmp_path, capsys):
+    root = write_lerobot(tmp_path / "d", make_episodes([3, 4], FPS), version="v2.1", fps=FPS)
+    with pytest.raises(DataError, match="episode 1 is asked for twice"):
+        read_lerobot(root, episodes=[1, 0, 1])
+    assert main(["lerobot", str(root), "--episodes", "1,1", "--dry-run"]) == 2
+    assert "--episodes" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("version", VERSIONS)
+def test_non_integer_episode_length_names_file_and_field(version, tmp_path):
+    root = write_lerobot(tmp_path / version, make_episodes([3, 4], FPS), version=version,
+                         fps=FPS)
+    if version == "v2.1":
+        path = root / "meta" / "episodes.jsonl"
+        rows = [json.loads(line) for line in path.read_text().splitlines()]
+        rows[1]["length"] = "four"
+        path.write_text("".join(json.dumps(r) + "\n" for r in rows))
+    else:
+        import pyarrow as pa
+
+        path = root / "meta" / "episodes" / "chunk-000" / "file-000.parquet"
+        table = pq.read_table(path)
+        i = table.column_names.index("length")
+        table = table.set_column(i, "length", pa.array(["3", "four"]))
+        pq.write_table(table, path)
+    with pytest.raises(DataError, match="length") as err:
+        read_lerobot(root)
+    assert str(path) in str(err.value)
+    assert "'four'" in str(err.value)
+
+
+def test_only_the_selected_columns_are_read(tmp_path, monkeypatch):
+    import rfmp_rl.data.lerobot as lerobot
+
+    episodes = make_episodes([3], FPS, image_key=IMAGE, size=8)
+    root = write_lerobot(tmp_path / "d", episodes, version="v2.1", fps=FPS, image_keys=[IMAGE])
+    asked = []
+    real = lerobot._read_table
+
+    def spy(path, columns=None):
+        asked.append((path.name, columns))
+        return real(path, columns)
+
+    monkeypatch.setattr(lerobot, "_read_table", spy)
+    (ep,), _ = read_lerobot(root, keys="observation.state")
+    data = [columns for name, columns in asked if name.startswith("episode_")]
+    assert data and IMAGE not in data[0] and "observation.state" in data[0]
+    np.testing.assert_array_equal(ep["obs", "state"].numpy(), episodes[0]["observation.state"])

@@ -143,3 +143,36 @@ def test_torchrl_minari_replay_still_reads_zeros(minari_root, tmp_path):
     assert data["action"].shape == (sum(LENGTHS), 1)
     # the file holds actions 100 e + t and observations (e, t, t / 2), mostly non-zero
     assert not data["action"].any() and not data["observation"].any()
+
+
+def test_text_observations_are_skipped_and_listed(tmp_path, capsys):
+    """MiniGrid-like: observations/mission is text; the numeric entries are still converted."""
+    folder = tmp_path / "minigrid" / "text-v0" / "data"
+    folder.mkdir(parents=True)
+    n = 4
+    with h5py.File(folder / "main_data.hdf5", "w") as f:
+        group = f.create_group("episode_0")
+        obs = group.create_group("observations")
+        obs["image"] = np.arange((n + 1) * 27, dtype=np.uint8).reshape(n + 1, 3, 3, 3)
+        obs["direction"] = np.arange(n + 1, dtype=np.int64)
+        obs.create_dataset("mission", data=["go to the ball"] * (n + 1),
+                           dtype=h5py.string_dtype())
+        group["actions"] = np.arange(n, dtype=np.int64)
+        group["rewards"] = np.zeros(n)
+        group["terminations"] = np.zeros(n, bool)
+        group["truncations"] = np.zeros(n, bool)
+        group.create_group("infos")
+    (ep,), manifest = read_minari(folder.parent)
+    assert ep["observation", "direction"].tolist() == [0, 1, 2, 3]
+    assert "observation/mission" not in manifest.keys
+    assert manifest.extra["skipped_keys"] == {"observation/mission": "non-numeric data (object)"}
+    assert "observation/mission: not stored (non-numeric data (object))" in str(manifest)
+    assert main(["minari", str(folder.parent), "--out", str(tmp_path / "store")]) == 0
+    assert "observation/mission: not stored" in capsys.readouterr().out
+    stored = DemonstrationStore.load(tmp_path / "store")
+    assert stored.manifest.extra["skipped_keys"] == manifest.extra["skipped_keys"]
+
+
+def test_duplicate_episode_ids_are_refused(minari_root):
+    with pytest.raises(DataError, match="episode 1 is asked for twice"):
+        read_minari(DATASET_ID, episodes=[1, 1])

@@ -1091,3 +1091,44 @@ def test_an_episode_recorded_as_minus_q_is_canonicalised_like_the_others(tmp_pat
     np.testing.assert_allclose(raw[1]["cmd", "orientation"].numpy(), -expected, atol=1e-5)
     np.testing.assert_allclose(raw[0]["action"][:, 3:7].numpy(), expected, atol=1e-5)
     assert manifest.extra["quaternions"]["raw_signs"] is True
+
+
+def _crashed_recordings(tmp_path):
+    """A flat folder: one good ROS 1 bag, an unfinished ROS 1 bag (``.bag.active``) and a
+    rosbag2 folder whose recorder died before writing ``metadata.yaml``."""
+    folder = tmp_path / "flat"
+    folder.mkdir()
+    gap_bag("ros1").write(folder / "ep1")
+    gap_bag("ros1").write(folder / "tmp")
+    (folder / "tmp.bag").rename(folder / "ep2.bag.active")
+    gap_bag("sqlite3").write(folder / "ep3")
+    (folder / "ep3" / "metadata.yaml").unlink()
+    return folder
+
+
+def test_unfinished_recordings_in_a_folder_are_not_left_out_silently(tmp_path):
+    folder = _crashed_recordings(tmp_path)
+    with pytest.raises(DataError, match="ep2.bag.active") as err:
+        read_rosbags(folder, GAP_CONFIG)
+    message = str(err.value)
+    assert "rosbag reindex" in message and "ep3" in message and "ros2 bag reindex" in message
+    episodes, manifest = read_rosbags(folder, GAP_CONFIG, skip_bad=True)
+    assert manifest.extra["files"] == [str(folder / "ep1.bag")] and len(episodes) == 1
+    skipped = {item["file"]: item["reason"] for item in manifest.skipped}
+    assert sorted(skipped) == [str(folder / "ep2.bag.active"), str(folder / "ep3")]
+    assert "rosbag reindex" in skipped[str(folder / "ep2.bag.active")]
+    assert "ros2 bag reindex" in skipped[str(folder / "ep3")]
+    assert (folder / "ep2.bag.active").exists() and (folder / "ep3").is_dir()  # left as they are
+
+
+def test_convert_command_passes_rate_to_the_ros_reader(tmp_path, capsys):
+    import yaml
+
+    from rfmp_rl.data.convert import main as convert_main
+
+    path = gap_bag("ros1").write(tmp_path / "demo")
+    config = tmp_path / "topics.yaml"
+    config.write_text(yaml.safe_dump(GAP_CONFIG))  # 10 Hz
+    assert convert_main(["ros", str(path), "--config", str(config), "--rate", "5",
+                         "--dry-run"]) == 0
+    assert ", 5 Hz" in capsys.readouterr().out

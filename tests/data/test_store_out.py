@@ -57,6 +57,21 @@ def test_out_writes_into_a_missing_or_empty_folder_and_replaces_its_own_store(tm
     assert _leftovers(out.parent) == []
 
 
+def test_a_store_with_the_users_files_beside_it_is_not_replaced(tmp_path, capsys):
+    out = tmp_path / "store"
+    _store().save(out)
+    (out / "my_notes.txt").write_text("mine")
+    (out / "raw_videos").mkdir()
+    (out / "raw_videos" / "a.mp4").write_bytes(b"video")
+    with pytest.raises(DataError, match="also holds files the store did not write"):
+        _store(value=1.0).save(out)
+    assert main(["lasa", "LShape", "--out", str(out)]) == 2
+    assert "my_notes.txt, raw_videos" in capsys.readouterr().err
+    assert (out / "my_notes.txt").read_text() == "mine"
+    assert (out / "raw_videos" / "a.mp4").read_bytes() == b"video"
+    assert float(DemonstrationStore.load(out).storage[0]["observation"][0]) == 0.0
+
+
 def test_a_failed_write_leaves_the_previous_store_intact(tmp_path, monkeypatch):
     out = tmp_path / "store"
     _store(12, value=1.0).save(out)

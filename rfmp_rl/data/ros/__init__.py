@@ -9,7 +9,10 @@ The configuration is in `rfmp_rl.data.ros.config`, the resampling functions in
 (``pip install rfmp_rl[data]``); compressed images also need OpenCV (``opencv-python``). A folder
 that is no bag itself stands for the bags in it, in name order, one bag each (so a flat folder
 of ``.db3`` / ``.mcap`` files is one bag per file; a recording split over several storage files
-needs its ``metadata.yaml``). A `RosbagConfig` maps topics to episode keys::
+needs its ``metadata.yaml``). Unfinished recordings (a ``.bag.active`` file; in a folder of
+bags, a subfolder of ``.db3`` / ``.mcap`` files without ``metadata.yaml``) are not read: a
+`DataError` suggests ``rosbag reindex`` / ``ros2 bag reindex``; with ``skip_bad`` they are
+listed in ``manifest.skipped``. A `RosbagConfig` maps topics to episode keys::
 
     rate_hz: 10                # the control rate every stream is resampled to
     topics:                    # one key per topic

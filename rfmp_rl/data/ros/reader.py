@@ -84,11 +84,24 @@ def _is_bag(path: Path) -> bool:
     return path.is_dir() and (path / "metadata.yaml").exists()
 
 
+def _unfinished(path: Path) -> str | None:
+    """Why ``path`` is a recording whose recorder stopped before closing it, or None."""
+    if path.is_file() and path.name.endswith(".bag.active"):
+        return ("an unfinished ROS 1 recording (.bag.active): run `rosbag reindex` on it and "
+                "rename it to .bag, or move it out of the folder")
+    if path.is_dir() and not (path / "metadata.yaml").exists() and any(
+            p.suffix in (".db3", ".mcap") for p in path.iterdir()):
+        return ("a rosbag2 folder without metadata.yaml (an unfinished recording): run "
+                "`ros2 bag reindex` on the folder, or move it out of the folder")
+    return None
+
+
 def _expand(path: Path) -> list[Path]:
     """A folder that is no bag itself but holds bags -> them, in name order: ``.bag`` files,
-    rosbag2 folders (with ``metadata.yaml``) and bare ``.db3`` / ``.mcap`` files, one bag each."""
+    rosbag2 folders (with ``metadata.yaml``) and bare ``.db3`` / ``.mcap`` files, one bag each,
+    and the unfinished recordings among them (see `_unfinished`; never read)."""
     if path.is_dir() and not _is_bag(path):
-        bags = sorted(p for p in path.iterdir() if _is_bag(p))
+        bags = sorted(p for p in path.iterdir() if _is_bag(p) or _unfinished(p))
         if bags:
             return bags
     return [path]
@@ -810,6 +823,10 @@ def read_rosbags(
         paths: one bag or a list of bags: ``.bag`` files (ROS 1), rosbag2 folders (with
             ``metadata.yaml``), or bare ``.db3`` / ``.mcap`` files. A folder that is not a bag
             but holds bags of these kinds stands for them, in name order, one bag each.
+            Unfinished recordings given or found there (a ``.bag.active`` file, a subfolder
+            with ``.db3`` / ``.mcap`` files but no ``metadata.yaml``) are not read: `DataError`
+            suggesting ``rosbag reindex`` / ``ros2 bag reindex``, or with ``skip_bad`` an entry
+            in ``manifest.skipped``.
         config: a `RosbagConfig` or the mapping to build one from.
         rate_hz: the control rate; overrides ``config.rate_hz``.
         skip_bad: skip a bag that raises `DataError` (corrupt, a missing topic, a gap with
@@ -847,6 +864,14 @@ def read_rosbags(
     bags = [bag for p in paths for bag in _expand(Path(p))]
     if not bags:
         raise ValueError("read_rosbags: no bag paths given")
+    unfinished = [(bag, reason) for bag in bags if (reason := _unfinished(bag))]
+    if unfinished and not skip_bad:
+        (first, reason), *more = unfinished
+        raise DataError(reason + "".join(f"; also {b}: {r}" for b, r in more), file=str(first))
+    bags = [bag for bag in bags if not _unfinished(bag)]
+    if not bags:
+        listed = "; ".join(f"{b}: {r}" for b, r in unfinished)
+        raise DataError(f"no readable bag: {listed}", file=str(unfinished[0][0]))
     resolved = [(bag, *_resolve(bag)) for bag in bags]  # every path checked before reading
     formats = sorted({fmt for _, fmt, _ in resolved})
     if len(bags) == 1:
@@ -870,6 +895,7 @@ def read_rosbags(
     )
     if cfg.vectors:
         manifest.extra["vectors"] = {}
+    manifest.skipped += [{"file": str(b), "reason": r} for b, r in unfinished]
     episodes: list[TensorDict] = []
     for bag, fmt, files in resolved:
         file = str(bag)
