@@ -36,7 +36,7 @@ from rfmp_rl.models import (
     ObservationEncoder,
 )
 from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
-from rfmp_rl.solvers import integrate
+from rfmp_rl.solvers import DEFAULT_SCHEDULES, integrate
 
 __all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model"]
 
@@ -375,7 +375,7 @@ class FlowModel(PolicyModel):
         ``return_intermediates`` also returns the times and the raw action chunks visited
         ``(n + 1, B, T_p, D)``.
         """
-        schedule = schedule or ("srfmp" if self.stable else "uniform")
+        schedule = schedule or DEFAULT_SCHEDULES[self.cfg.algorithm]
         x0 = self.initial_state(noise, cond.shape[0], deterministic, like=cond)
         if self.stable:
             dim = self.chunk.dim

@@ -17,6 +17,7 @@ from torchrl.envs.utils import ExplorationType, exploration_type
 
 from rfmp_rl import keys
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
+from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["VectorField", "FlowPolicy"]
 
@@ -94,7 +95,9 @@ class FlowPolicy(TensorDictModuleBase):
 
     Args:
         model: the network (`FlowModel` or `DiffusionModel`).
-        nfe: function evaluations per chunk.
+        solver: the inference budget (`rfmp_rl.solvers.SolverConfig`; the algorithm's defaults
+            fill what it leaves out). When given, the five arguments below must stay unset.
+        nfe: function evaluations per chunk (default 1).
         method: ODE method (flows only).
         t_end: end time T of the integration (may exceed 1).
         schedule: ``"uniform"`` or ``"srfmp"`` (default: SRFMP's for SRFMP).
@@ -115,9 +118,10 @@ class FlowPolicy(TensorDictModuleBase):
         self,
         model: FlowModel | DiffusionModel,
         *,
-        nfe: int = 1,
-        method: str = "euler",
-        t_end: float = 1.0,
+        solver: SolverConfig | None = None,
+        nfe: int | None = None,
+        method: str | None = None,
+        t_end: float | None = None,
         schedule: str | None = None,
         refine_dt: float | None = None,
         observation_key: NestedKey = keys.OBSERVATION,
@@ -128,26 +132,18 @@ class FlowPolicy(TensorDictModuleBase):
     ) -> None:
         super().__init__()
         self.model = model
-        self.solver_kwargs = {
-            "nfe": int(nfe),
-            "method": method,
-            "t_end": float(t_end),
-            "schedule": schedule,
-            "refine_dt": refine_dt,
-        }
+        given = {k: v for k, v in {"nfe": nfe, "method": method, "t_end": t_end,
+                                   "schedule": schedule, "refine_dt": refine_dt}.items()
+                 if v is not None}
+        if solver is not None and given:
+            raise TypeError(f"FlowPolicy: give either solver= or {sorted(given)}, not both")
+        solver = (solver or SolverConfig(**given)).resolve(model.cfg.algorithm)
         if isinstance(model, FlowModel):  # validate the budget now, not mid-rollout
-            from rfmp_rl.solvers import step_sizes
-
-            step_sizes(
-                nfe,
-                method,
-                t_end,
-                schedule or ("srfmp" if model.stable else "uniform"),
-                model.cfg.lambda_x,
-                refine_dt,
-            )
+            solver.step_sizes(model.cfg.lambda_x)
         else:
-            model.ddim_timesteps(nfe)
+            model.ddim_timesteps(solver.nfe)
+        self.solver = solver
+        self.solver_kwargs = solver.sample_kwargs()
         self.observation_key, self.gap_key = observation_key, gap_key
         self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
         self.action_key, self.noise_key = action_key, noise_key
@@ -155,6 +151,40 @@ class FlowPolicy(TensorDictModuleBase):
         in_keys += [self.camera_keys[name] for name in model.cameras]
         self.in_keys = in_keys
         self.out_keys = [action_key]
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path,
+        nfe: int | None = None,
+        t_end: float | None = None,
+        *,
+        use_ema: bool = True,
+        **kwargs,
+    ) -> FlowPolicy:
+        """The policy of a checkpoint, in eval mode, integrating with the solver the checkpoint
+        stores (the one its run selected and evaluated with; the algorithm's defaults for
+        checkpoints that store none), with ``nfe`` / ``t_end`` overriding it. ``kwargs`` go to
+        `FlowPolicy` (keys).
+
+        Example:
+            >>> from rfmp_rl.checkpoint import save_checkpoint
+            >>> from rfmp_rl.modules import ModelConfig, build_model
+            >>> model = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4,
+            ...                                 down_dims=[32, 64]))
+            >>> path = save_checkpoint("srfmp.pt", model, solver=SolverConfig(nfe=3))
+            >>> FlowPolicy.from_checkpoint(path).solver.nfe, FlowPolicy.from_checkpoint(
+            ...     path, nfe=1).solver
+            (3, SolverConfig(nfe=1, t_end=1.0, method='euler', schedule='srfmp', refine_dt=None))
+        """
+        from dataclasses import replace
+
+        from rfmp_rl.checkpoint import load_checkpoint
+
+        model, payload = load_checkpoint(path, use_ema=use_ema)
+        solver = SolverConfig.from_dict(payload.get("solver") or {})
+        overrides = {k: v for k, v in {"nfe": nfe, "t_end": t_end}.items() if v is not None}
+        return cls(model.eval(), solver=replace(solver, **overrides), **kwargs)
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
