@@ -99,18 +99,19 @@ class InferenceGraph(nn.Module):
         super().__init__()
         self.model = model
         self.solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
+        if model.cfg.obs_horizon > 2:
+            raise ValueError(
+                f"ONNX export ({ONNX_FORMAT}) takes the window [o^(s-2), o^(s-1)]: the policy's "
+                f"T_o = {model.cfg.obs_horizon} needs a gap input the format does not have"
+            )
         self.has_obs = model.cfg.obs_dim > 0
         self.cameras = tuple(model.cameras)
-        self.input_names = (
-            (["observation"] if self.has_obs else []) + list(self.cameras) + ["prior_noise"]
-        )
+        # the conditioning inputs as the model orders them (`condition_keys`), then the noise
+        self.input_names = [*map(str, model.condition_keys()), "prior_noise"]
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
-        obs = inputs[0] if self.has_obs else None
-        offset = 1 if self.has_obs else 0
-        images = dict(zip(self.cameras, inputs[offset : offset + len(self.cameras)], strict=True))
-        noise = inputs[-1]
-        cond = self.model.encode(obs, images or None)
+        *conditioning, noise = inputs
+        cond = self.model.encode_inputs(*conditioning)
         return self.model.sample(cond, noise, **self.solver.sample_kwargs())
 
 
