@@ -16,6 +16,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.modules import FlowPolicy  # noqa: E402
 from rfmp_rl.solvers import SolverConfig  # noqa: E402
 
@@ -203,7 +204,7 @@ def end_time(model, nfe: int, t_end: float) -> float:
     return solver_config(model, nfe, t_end).reached(model.cfg.lambda_x)
 
 
-def make_actor(model, nfe: int, t_end: float, observation_key="obs_window",
+def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,
                camera_keys=None) -> MultiStepActorWrapper:
     """FlowPolicy executing T_a of every T_p actions (receding horizon)."""
     policy = FlowPolicy(model, observation_key=observation_key, camera_keys=camera_keys,

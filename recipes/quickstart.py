@@ -42,6 +42,7 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.checkpoint import save_checkpoint  # noqa: E402
 from rfmp_rl.data import episode_windows  # noqa: E402
 from rfmp_rl.data.lasa import load_lasa_sphere  # noqa: E402
@@ -168,7 +169,7 @@ def rollout_policy(
         seed=cfg.seed,
         context=context,
     )
-    policy = FlowPolicy(model, observation_key="obs_window", solver=solver)
+    policy = FlowPolicy(model, observation_key=keys.OBS_WINDOW, solver=solver)
     actor = MultiStepActorWrapper(policy, n_steps=cfg.horizon, replan_interval=cfg.action_steps)
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         td = env.reset(TensorDict({"start": starts}, batch_size=[len(starts)]))

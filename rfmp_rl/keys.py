@@ -7,6 +7,9 @@ Observation layout: ``observation`` holds the observation window ``(..., 2, D_ob
 time, ``[o^c, o^{s-1}]`` (context first, reference last) — what TorchRL's
 ``CatFrames(N=2, dim=-2)`` produces. Camera entries hold ``(..., 2, C, H, W)`` the same way.
 ``obs_gap`` holds ``s - c`` when T_o > 2.
+
+The library's envs emit one step's observation under ``obs_step`` / ``pixels_step`` and the
+window a policy acts on under ``obs_window`` / ``pixels_window`` (TorchRL ``CatFrames``).
 """
 
 from __future__ import annotations
@@ -18,7 +21,12 @@ ACTION = "action"
 ACTION_IS_PAD = "action_is_pad"
 PRIOR_NOISE = "prior_noise"
 FLOW_TIME = "flow_time"
+OBS_STEP = "obs_step"
+OBS_WINDOW = "obs_window"
+PIXELS_STEP = "pixels_step"
+PIXELS_WINDOW = "pixels_window"
 
 __all__ = [
     "OBSERVATION", "PIXELS", "OBS_GAP", "ACTION", "ACTION_IS_PAD", "PRIOR_NOISE", "FLOW_TIME",
+    "OBS_STEP", "OBS_WINDOW", "PIXELS_STEP", "PIXELS_WINDOW",
 ]
