@@ -1,6 +1,6 @@
 """Export a checkpoint's fixed-NFE inference to ONNX and prove parity with PyTorch.
 
-    python export/to_onnx.py --checkpoint runs/x/ckpt.pt --nfe 1 [--horizon 1.0]
+    python export/to_onnx.py --checkpoint runs/x/ckpt.pt [--nfe 1] [--t-end 1.0]
         [--method euler] [--schedule srfmp] [--out policy.onnx] [--opset 18] [--raw-weights]
         [--precision fp32|fp16|int8|int8-dynamic] [--calibration STORE] [--max-diff X]
 
@@ -9,7 +9,9 @@ unnormalise), checks it with ``onnx.checker``, runs it in onnxruntime against th
 policy on the same inputs and prior noise, prints the max difference and the latency, and exits
 non-zero if the difference exceeds 1e-4 (in normalised action units: Euclidean coordinates
 divided by their half-range) or a sphere component is off the manifold by > 1e-5.
-The EMA weights are exported unless ``--raw-weights`` is given.
+The EMA weights are exported unless ``--raw-weights`` is given. The solver settings not given
+on the command line come from the checkpoint (the `SolverConfig` its run stored; for older
+checkpoints, the algorithm's defaults at NFE 1).
 
 ``--precision`` exports the networks (observation encoder, UNet) in float16 or int8 while the
 normalisation, manifold maps and solver steps stay float32 (`rfmp_rl.onnx_export`); the
@@ -24,6 +26,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
@@ -38,6 +41,7 @@ from rfmp_rl.onnx_export import (  # noqa: E402
     calibration_inputs,
     export_onnx,
 )
+from rfmp_rl.solvers import SolverConfig  # noqa: E402
 
 
 def store_calibration(model, path: str, windows: int) -> list:
@@ -62,11 +66,13 @@ def store_calibration(model, path: str, windows: int) -> list:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", required=True, help="checkpoint written by training")
-    parser.add_argument("--nfe", type=int, required=True, help="function evaluations, unrolled")
-    parser.add_argument(
-        "--horizon", type=float, default=1.0, help="integration end time T (may exceed 1)"
-    )
-    parser.add_argument("--method", default="euler", help="euler | euler_projx | midpoint | rk4")
+    parser.add_argument("--nfe", type=int, default=None,
+                        help="function evaluations, unrolled (default: the checkpoint's)")
+    parser.add_argument("--t-end", "--horizon", dest="t_end", type=float, default=None,
+                        help="integration end time T, may exceed 1 (default: the checkpoint's; "
+                        "--horizon is the former name)")
+    parser.add_argument("--method", default=None,
+                        help="euler | euler_projx | midpoint | rk4 (default: the checkpoint's)")
     parser.add_argument(
         "--schedule",
         default=None,
@@ -89,12 +95,21 @@ def main(argv: list[str] | None = None) -> int:
         parser.error("--calibration applies to --precision int8 only")
 
     model, payload = load_checkpoint(args.checkpoint, use_ema=not args.raw_weights)
+    given = {"nfe": args.nfe, "t_end": args.t_end, "method": args.method,
+             "schedule": args.schedule, "refine_dt": args.refine_dt}
+    try:
+        stored = SolverConfig.from_dict(payload.get("solver") or {})
+        solver = replace(stored, **{k: v for k, v in given.items() if v is not None})
+        solver = solver.resolve(model.cfg.algorithm)
+    except ValueError as err:
+        print(f"export failed: {err}", file=sys.stderr)
+        return 1
     suffix = "" if args.precision == "fp32" else f"_{args.precision}"
     out = (
         Path(args.out)
         if args.out
         else Path(args.checkpoint).with_name(
-            f"policy_{payload['algorithm']}_nfe{args.nfe}{suffix}.onnx")
+            f"policy_{payload['algorithm']}_nfe{solver.nfe}{suffix}.onnx")
     )
     try:
         calibration = None
@@ -103,11 +118,7 @@ def main(argv: list[str] | None = None) -> int:
         report = export_onnx(
             model,
             out,
-            args.nfe,
-            args.method,
-            args.horizon,
-            args.schedule,
-            args.refine_dt,
+            solver=solver,
             opset=args.opset,
             atol=args.max_diff,
             precision=args.precision,

@@ -16,8 +16,9 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.modules import FlowPolicy  # noqa: E402
-from rfmp_rl.solvers import step_sizes  # noqa: E402
+from rfmp_rl.solvers import SolverConfig  # noqa: E402
 
 #: Recipe algorithm name -> ModelConfig algorithm.
 ALGOS = {"rfmp": "rfmp", "srfmp": "srfmp", "dp": "ddim"}
@@ -155,6 +156,7 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
         logger=LoggerConfig.from_config(cfg.get("logger", "csv")),
         config=OmegaConf.to_container(cfg, resolve=True), seed=int(cfg.seed),
         camera_keys=camera_keys, rollout_score=rollout_score, resume=resume,
+        solver=run_solver(cfg),
     )
     if runtime.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -185,28 +187,28 @@ def exit_code(result) -> int:
     return 128 + int(getattr(signal, result.interrupted))
 
 
-def solver_settings(model, nfe: int, t_end: float) -> dict:
-    """FlowPolicy arguments: SRFMP the paper's schedule (first step 1/lambda_x), RFMP uniform
-    steps to T, DDIM ``nfe`` DDIM steps (T does not apply)."""
-    if model.cfg.algorithm == "ddim":
-        return {"nfe": nfe}
-    schedule = "srfmp" if model.cfg.algorithm == "srfmp" else "uniform"
-    return {"nfe": nfe, "t_end": t_end, "schedule": schedule}
+def solver_config(model, nfe: int, t_end: float) -> SolverConfig:
+    """The solver at (NFE, T) with the algorithm's defaults (`rfmp_rl.solvers.SolverConfig`)."""
+    return SolverConfig(nfe=nfe, t_end=t_end).resolve(model.cfg.algorithm)
+
+
+def run_solver(cfg: DictConfig) -> SolverConfig:
+    """The solver a run selects with (``train.select_nfe`` / ``select_t_end``; else the first
+    evaluation NFE at T = 1): stored in its checkpoints."""
+    nfe = cfg.train.get("select_nfe") or cfg.eval.nfes[0]
+    return SolverConfig(nfe=int(nfe), t_end=float(cfg.train.get("select_t_end") or 1.0))
 
 
 def end_time(model, nfe: int, t_end: float) -> float:
     """The flow time actually reached (SRFMP's first step is 1/lambda_x, so NFE=1 ends there)."""
-    if model.cfg.algorithm == "ddim":
-        return 1.0
-    kw = solver_settings(model, nfe, t_end)
-    return sum(step_sizes(nfe, "euler", t_end, kw["schedule"], model.cfg.lambda_x))
+    return solver_config(model, nfe, t_end).reached(model.cfg.lambda_x)
 
 
-def make_actor(model, nfe: int, t_end: float, observation_key="obs_window",
+def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,
                camera_keys=None) -> MultiStepActorWrapper:
     """FlowPolicy executing T_a of every T_p actions (receding horizon)."""
     policy = FlowPolicy(model, observation_key=observation_key, camera_keys=camera_keys,
-                        **solver_settings(model, nfe, t_end))
+                        solver=solver_config(model, nfe, t_end))
     return MultiStepActorWrapper(policy, n_steps=model.cfg.horizon,
                                  replan_interval=model.cfg.action_steps)
 

@@ -42,6 +42,7 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.checkpoint import save_checkpoint  # noqa: E402
 from rfmp_rl.data import episode_windows  # noqa: E402
 from rfmp_rl.data.lasa import load_lasa_sphere  # noqa: E402
@@ -49,6 +50,7 @@ from rfmp_rl.envs import make_lasa_sphere_env  # noqa: E402
 from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw  # noqa: E402
 from rfmp_rl.manifolds import Sphere  # noqa: E402
 from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model  # noqa: E402
+from rfmp_rl.solvers import SolverConfig  # noqa: E402
 from rfmp_rl.training import (  # noqa: E402
     LoggerConfig,
     OptimConfig,
@@ -153,21 +155,9 @@ def start_points(demos: dict[str, torch.Tensor], perturb: float, seed: int):
     return torch.cat(starts), torch.tensor(shape_ids), kinds
 
 
-def solver_kwargs(algorithm: str, nfe: int, t_end: float) -> dict:
-    # SRFMP: the paper's schedule (first step 1/lambda_x, then refinement steps up to T);
-    # RFMP: uniform steps T / NFE.
-    return {"nfe": nfe, "t_end": t_end, "schedule": "srfmp" if algorithm == "srfmp" else "uniform"}
-
-
-def end_time(model, algorithm: str, nfe: int, t_end: float) -> float:
-    from rfmp_rl.solvers import step_sizes
-
-    kw = solver_kwargs(algorithm, nfe, t_end)
-    return sum(step_sizes(nfe, "euler", t_end, kw["schedule"], model.cfg.lambda_x))
-
-
 def rollout_policy(
-    model, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig, **solver
+    model, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig,
+    solver: SolverConfig,
 ) -> torch.Tensor:
     """Closed-loop trajectories ``(N, steps + 1, 3)`` from the prior's mode (zero noise)."""
     env = make_lasa_sphere_env(
@@ -179,7 +169,7 @@ def rollout_policy(
         seed=cfg.seed,
         context=context,
     )
-    policy = FlowPolicy(model, observation_key="obs_window", **solver)
+    policy = FlowPolicy(model, observation_key=keys.OBS_WINDOW, solver=solver)
     actor = MultiStepActorWrapper(policy, n_steps=cfg.horizon, replan_interval=cfg.action_steps)
     with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
         td = env.reset(TensorDict({"start": starts}, batch_size=[len(starts)]))
@@ -356,6 +346,7 @@ def main(cfg: DictConfig) -> None:
             model,
             ema,
             config=OmegaConf.to_container(cfg, resolve=True),
+            solver=SolverConfig(nfe=1),  # the exported and deployed budget
             steps=cfg.steps,
         )
         models[algorithm] = ema.module.eval().cpu().set_precision("fp32")  # CPU rollouts, fp32
@@ -368,10 +359,10 @@ def main(cfg: DictConfig) -> None:
     evals = [(a, n, t) for a in models for n in cfg.nfes for t in cfg.t_ends]
     for algorithm, nfe, t_end in tqdm(evals, desc="evaluate", unit="config", dynamic_ncols=True):
         model = models[algorithm]
-        trajs = rollout_policy(model, starts, context, horizon, cfg,
-                               **solver_kwargs(algorithm, nfe, t_end))
+        solver = SolverConfig(nfe=nfe, t_end=t_end).resolve(algorithm)
+        trajs = rollout_policy(model, starts, context, horizon, cfg, solver)
         s = score(trajs, shape_ids, demos, dt)
-        s["t_reached"] = end_time(model, algorithm, nfe, t_end)
+        s["t_reached"] = solver.reached(model.cfg.lambda_x)
         s["success"] = float(
             (torch.tensor(s["per_rollout_final"]) <= cfg.goal_threshold).float().mean()
         )

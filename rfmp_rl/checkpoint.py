@@ -17,6 +17,7 @@ import torch
 from rfmp_rl import __version__
 from rfmp_rl.modules.ema import EMA
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel, ModelConfig, build_model
+from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["save_checkpoint", "load_checkpoint", "read_checkpoint", "CHECKPOINT_FORMAT"]
 
@@ -29,6 +30,7 @@ def save_checkpoint(
     ema: EMA | None = None,
     config: Mapping[str, Any] | None = None,
     training_state: Mapping[str, Any] | None = None,
+    solver: SolverConfig | None = None,
     **extra: Any,
 ) -> Path:
     """Atomically write a checkpoint.
@@ -40,6 +42,9 @@ def save_checkpoint(
         config: the run configuration (plain, JSON-like values), stored for reproducibility.
         training_state: what a resumed run needs beyond the weights (optimiser, step, RNG
             states; written by `rfmp_rl.training.Trainer` into ``last.pt``).
+        solver: the inference budget the policy is meant to run with (stored resolved;
+            default: the algorithm's defaults at NFE 1). `FlowPolicy.from_checkpoint` and
+            ``export/to_onnx.py`` start from it.
         **extra: further plain values (epoch, step, validation loss, ...).
 
     Returns:
@@ -67,6 +72,7 @@ def save_checkpoint(
         "ema_state_dict": ema.module.state_dict() if ema is not None else None,
         "ema_num_updates": int(ema.num_updates) if ema is not None else 0,
         "config": dict(config) if config is not None else {},
+        "solver": (solver or SolverConfig()).resolve(cfg.algorithm).to_dict(),
         "extra": extra,
     }
     if training_state is not None:

@@ -10,6 +10,9 @@ time, ``[o^c, o^{s-1}]`` (context first, reference last) — what TorchRL's
 
 Stored episodes may carry ``timestamp``: float64 ``(T,)``, seconds since the episode's first step
 (the first value is 0.0). It is step metadata, never an observation or an action.
+
+The library's envs emit one step's observation under ``obs_step`` / ``pixels_step`` and the
+window a policy acts on under ``obs_window`` / ``pixels_window`` (TorchRL ``CatFrames``).
 """
 
 from __future__ import annotations
@@ -22,8 +25,12 @@ ACTION_IS_PAD = "action_is_pad"
 PRIOR_NOISE = "prior_noise"
 FLOW_TIME = "flow_time"
 TIMESTAMP = "timestamp"
+OBS_STEP = "obs_step"
+OBS_WINDOW = "obs_window"
+PIXELS_STEP = "pixels_step"
+PIXELS_WINDOW = "pixels_window"
 
 __all__ = [
     "OBSERVATION", "PIXELS", "OBS_GAP", "ACTION", "ACTION_IS_PAD", "PRIOR_NOISE", "FLOW_TIME",
-    "TIMESTAMP",
+    "TIMESTAMP", "OBS_STEP", "OBS_WINDOW", "PIXELS_STEP", "PIXELS_WINDOW",
 ]

@@ -49,6 +49,7 @@ from torch import nn
 from rfmp_rl import __version__
 from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
+from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["InferenceGraph", "ExportReport", "export_onnx", "onnx_metadata", "ONNX_FORMAT",
            "EXPORT_PRECISIONS", "PARITY_LIMITS", "calibration_inputs"]
@@ -87,34 +88,40 @@ class InferenceGraph(nn.Module):
     def __init__(
         self,
         model: FlowModel | DiffusionModel,
-        nfe: int,
+        nfe: int | None = None,
         method: str = "euler",
         t_end: float = 1.0,
         schedule: str | None = None,
         refine_dt: float | None = None,
+        *,
+        solver: SolverConfig | None = None,
     ) -> None:
         super().__init__()
         self.model = model
-        self.solver = {
-            "nfe": int(nfe),
-            "method": method,
-            "t_end": float(t_end),
-            "schedule": schedule,
-            "refine_dt": refine_dt,
-        }
+        self.solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
+        if model.cfg.obs_horizon > 2:
+            raise ValueError(
+                f"ONNX export ({ONNX_FORMAT}) takes the window [o^(s-2), o^(s-1)]: the policy's "
+                f"T_o = {model.cfg.obs_horizon} needs a gap input the format does not have"
+            )
         self.has_obs = model.cfg.obs_dim > 0
         self.cameras = tuple(model.cameras)
-        self.input_names = (
-            (["observation"] if self.has_obs else []) + list(self.cameras) + ["prior_noise"]
-        )
+        # the conditioning inputs as the model orders them (`condition_keys`), then the noise
+        self.input_names = [*map(str, model.condition_keys()), "prior_noise"]
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
-        obs = inputs[0] if self.has_obs else None
-        offset = 1 if self.has_obs else 0
-        images = dict(zip(self.cameras, inputs[offset : offset + len(self.cameras)], strict=True))
-        noise = inputs[-1]
-        cond = self.model.encode(obs, images or None)
-        return self.model.sample(cond, noise, **self.solver)
+        *conditioning, noise = inputs
+        cond = self.model.encode_inputs(*conditioning)
+        return self.model.sample(cond, noise, **self.solver.sample_kwargs())
+
+
+def _solver(model, solver, nfe, method, t_end, schedule, refine_dt) -> SolverConfig:
+    """``solver`` or one built from the separate arguments, resolved for the model."""
+    if solver is None:
+        solver = SolverConfig(1 if nfe is None else nfe, t_end, method, schedule, refine_dt)
+    elif nfe is not None:
+        raise TypeError("give either solver= or nfe (with method, t_end, ...), not both")
+    return solver.resolve(model.cfg.algorithm)
 
 
 def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
@@ -149,17 +156,15 @@ def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
     inputs.append(
         {"name": "prior_noise", "shape": [model.noise_dim], "dtype": "float32", "kind": "noise"}
     )
-    schedule = graph.solver["schedule"] or (
-        "srfmp" if isinstance(model, FlowModel) and model.stable else "uniform"
-    )
+    solver = graph.solver
     meta = {
         "rfmp_rl.format": ONNX_FORMAT,
         "rfmp_rl.version": __version__,
         "algorithm": cfg.algorithm,
-        "nfe": str(graph.solver["nfe"]),
-        "method": graph.solver["method"] if cfg.algorithm != "ddim" else "ddim",
-        "t_end": repr(graph.solver["t_end"]),
-        "schedule": schedule if cfg.algorithm != "ddim" else "ddim",
+        "nfe": str(solver.nfe),
+        "method": solver.method,
+        "t_end": repr(solver.t_end),
+        "schedule": solver.schedule,
         "obs_horizon": str(cfg.obs_horizon),
         "horizon": str(cfg.horizon),
         "action_steps": str(cfg.action_steps),
@@ -364,7 +369,7 @@ def _save_atomic(proto, path: Path) -> None:
 def export_onnx(
     model: FlowModel | DiffusionModel,
     path: str | Path,
-    nfe: int,
+    nfe: int | None = None,
     method: str = "euler",
     t_end: float = 1.0,
     schedule: str | None = None,
@@ -375,10 +380,13 @@ def export_onnx(
     latency_runs: int = 20,
     precision: str = "fp32",
     calibration: Iterable[Sequence[torch.Tensor]] | None = None,
+    solver: SolverConfig | None = None,
 ) -> ExportReport:
     """Export, check with ``onnx.checker``, and compare onnxruntime with float32 PyTorch.
 
     Args:
+        nfe, method, t_end, schedule, refine_dt: the solver unrolled in the graph, or
+            ``solver``: a `SolverConfig` (then leave ``nfe`` unset).
         precision: one of `EXPORT_PRECISIONS` (see the module docstring).
         atol: parity limit in normalised action units (default: `PARITY_LIMITS[precision]`).
         calibration: ``int8`` only: batches of graph inputs (``(observation?, *images,
@@ -400,11 +408,12 @@ def export_onnx(
         raise ValueError(f"precision must be one of {EXPORT_PRECISIONS}, got {precision!r}")
     atol = PARITY_LIMITS[precision] if atol is None else float(atol)
     model = model.eval()
-    graph = InferenceGraph(model, nfe, method, t_end, schedule, refine_dt).eval()
+    solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
+    graph = InferenceGraph(model, solver=solver).eval()
     exported = graph
     if precision == "fp16":
         half = copy.deepcopy(model).store_networks_in(torch.float16)
-        exported = InferenceGraph(half, nfe, method, t_end, schedule, refine_dt).eval()
+        exported = InferenceGraph(half, solver=solver).eval()
     metadata = onnx_metadata(graph)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -1,7 +1,7 @@
-"""``python -m rfmp_deploy`` is ``python -m rfmp_deploy.run``."""
+"""``python -m rfmp_deploy``: the command line of `rfmp_deploy.cli`."""
 
 from __future__ import annotations
 
-from rfmp_deploy.run import main
+from rfmp_deploy.cli import main
 
 raise SystemExit(main())

@@ -26,7 +26,7 @@ class RobotInterface(Protocol):
     necessary: a dict with one entry per low-dimensional field in the model's
     ``observation_keys`` (``(dim,)`` numbers in the units and frames used in training) and one
     entry per camera name (``H x W x 3`` uint8 RGB, any size: the controller resizes). Print
-    ``python -m rfmp_deploy.run --model policy.onnx --check`` for the list. If a sensor is
+    ``python -m rfmp_deploy --model policy.onnx --check`` for the list. If a sensor is
     unavailable, leave its key out (or pass NaN) rather than raising: the controller then holds
     and records a ``rejected`` event, and the loop keeps its rate. Exceptions from
     ``read_observation`` propagate and end the loop.

@@ -29,6 +29,8 @@ sys.path.insert(0, str(ROOT))
 
 import quickstart as qs  # noqa: E402
 
+from rfmp_rl.solvers import SolverConfig  # noqa: E402
+
 NFES, T_ENDS = (1, 5, 10), (1.0, 1.6)
 
 
@@ -49,7 +51,7 @@ def run_seed(cfg, seed: int) -> dict:
     for nfe in NFES:
         for t_end in T_ENDS:
             trajs = qs.rollout_policy(
-                model, starts, context, steps, cfg, **qs.solver_kwargs("srfmp", nfe, t_end)
+                model, starts, context, steps, cfg, SolverConfig(nfe, t_end).resolve("srfmp")
             )
             dtw[(nfe, t_end)] = qs.score(trajs, shape_ids, demos, dt)["dtw"]
     return {"seconds": seconds, "dtw": dtw}

@@ -1,19 +1,22 @@
 """Soak test of the deploy controller: a fixed-rate loop against a fake robot, for minutes.
 
     .venv/bin/python recipes/benchmarks/soak.py [--minutes 10] [--rate 50] [--preset small]
-        [--model policy.onnx] [--threads 2] [--out results/soak.md]
+        [--model policy.onnx] [--threads 2] [--modes sync async] [--out results/soak.md]
 
 Exports an SRFMP NFE=1 Push-T state policy of the given UNet preset (random weights; in a child
 process, so that this one stays torch-free like the robot PC) or loads ``--model``, then drives
-a synchronous `rfmp_deploy.Controller` (T_a from the model: one inference every T_a steps) with
+an `rfmp_deploy.Controller` (T_a from the model: one inference every T_a steps) with
 `rfmp_deploy.run` at ``--rate`` Hz against a fake robot that returns random valid observations
-(standard normal, like `Policy.random_inputs`) and drops the actions.
+(standard normal, like `Policy.random_inputs`) and drops the actions. Each mode in ``--modes``
+runs for ``--minutes``, one after the other in the same process: ``sync`` plans inside the step
+that needs the chunk, ``async`` (``Controller(asynchronous=True)``) plans in a background thread
+while the queued actions are sent.
 
 Recorded: per-step latency (read + step + send, the work `run` measures against the period) at
 p50, p99 and max; every inference's latency (`Controller.inference_times`); overruns and missed
-ticks (`RunStats`); the controller's events; the process RSS (VmRSS) every 10 s. The Issue 5
-target is an RSS growth below 5 MB (10^6 bytes) between the first minute and the end. Results
-are printed; ``--out`` also writes them, under the command that produced them.
+ticks (`RunStats`); the controller's events; the process RSS (VmRSS) every 10 s. Targets: no
+overrun, and an RSS growth below 5 MB (10^6 bytes) between the first minute and the end of each
+mode. Results are printed; ``--out`` also writes them, under the command that produced them.
 """
 
 from __future__ import annotations
@@ -139,7 +142,8 @@ def percentiles_ms(values: np.ndarray) -> str:
     return f"{np.median(ms):.2f} / {np.percentile(ms, 99):.2f} / {ms.max():.2f}"
 
 
-def report(args, model: str, controller: Controller, robot: FakeRobot, stats, monitor) -> list[str]:
+def report(args, mode: str, model: str, controller: Controller, robot: FakeRobot, stats,
+           monitor) -> list[str]:
     meta = controller.meta
     samples = monitor.samples
     t, rss = np.array([s[0] for s in samples]), np.array([s[1] for s in samples], dtype=float)
@@ -150,12 +154,17 @@ def report(args, model: str, controller: Controller, robot: FakeRobot, stats, mo
     period = 1e3 / args.rate
     expected = int(args.minutes * 60 * args.rate)
     counts = ", ".join(f"{k} {v}" for k, v in sorted(controller.event_counts.items())) or "none"
+    kind = ("Asynchronous `Controller(asynchronous=True)`" if mode == "async"
+            else "Synchronous `Controller`")
     lines = [
+        f"## {mode}",
+        "",
         f"Model: {model} ({meta.algorithm}, NFE {meta.nfe}, T_p {meta.horizon}, "
         f"T_a {meta.action_steps}, D_obs {meta.obs_dim}, actions {meta.action_space}). "
-        f"Synchronous `Controller` driven by `rfmp_deploy.run` at {args.rate:g} Hz "
+        f"{kind} driven by `rfmp_deploy.run` at {args.rate:g} Hz "
         f"(period {period:.1f} ms) for {args.minutes:g} min; onnxruntime {ort.__version__}, "
-        f"intra-op {args.threads} threads; {os.cpu_count()} logical CPUs, load average "
+        f"intra-op {args.threads} threads; {os.cpu_count()} logical CPUs, process nice "
+        f"{os.nice(0)}, load average "
         f"(1, 5, 15 min) at end {', '.join(f'{v:.2f}' for v in os.getloadavg())}. "
         f"The policy ran 3 untimed warm-up inferences before the loop.",
         "",
@@ -166,7 +175,8 @@ def report(args, model: str, controller: Controller, robot: FakeRobot, stats, mo
         f"| below the {period:.1f} ms period |",
         f"| inference latency p50 / p99 / max (ms), {robot.inferences} inferences | "
         f"{percentiles_ms(robot.inference_times)} | |",
-        f"| overruns / missed ticks (`RunStats`) | {stats.overruns} / {stats.missed_ticks} | 0 |",
+        f"| overruns / missed ticks (`RunStats`) | {stats.overruns} / {stats.missed_ticks} | "
+        f"0: **{'met' if stats.overruns == 0 else 'missed'}** |",
         f"| controller events | {counts} | |",
         f"| events retained at end | {len(controller.events)} "
         f"(~{events_bytes(controller) / 1e6:.2f} MB, capped at {controller.max_events}) | |",
@@ -197,6 +207,8 @@ def main() -> None:
     parser.add_argument("--model", default=None, help="soak this .onnx instead of exporting")
     parser.add_argument("--threads", type=int, default=2, help="onnxruntime intra-op threads")
     parser.add_argument("--seed", type=int, default=0, help="noise and observation seed")
+    parser.add_argument("--modes", nargs="+", default=["sync", "async"],
+                        choices=["sync", "async"], help="controller modes, run one after another")
     parser.add_argument("--out", default=None, help="also write the report to this markdown file")
     args = parser.parse_args()
 
@@ -213,23 +225,26 @@ def main() -> None:
     for _ in range(3):  # warm-up: the first calls allocate
         policy(**policy.random_inputs(1, rng))
 
-    controller = Controller(policy, seed=args.seed, control_rate_hz=args.rate)
-    capacity = int(args.minutes * 60 * args.rate) + 1000
-    robot = FakeRobot(controller, capacity, seed=args.seed)
-    monitor = Monitor(args.minutes * 60, robot)
-    print(f"soaking {path.name} at {args.rate:g} Hz for {args.minutes:g} min", flush=True)
-    stats = run(controller, robot, rate_hz=args.rate, stop=monitor)
-    monitor.sample()  # the end
-    controller.close()
-    print(stats.summary(), flush=True)
-
-    lines = report(args, model, controller, robot, stats, monitor)
+    lines = []
+    for mode in args.modes:
+        controller = Controller(policy, seed=args.seed, control_rate_hz=args.rate,
+                                asynchronous=mode == "async")
+        capacity = int(args.minutes * 60 * args.rate) + 1000
+        robot = FakeRobot(controller, capacity, seed=args.seed)
+        monitor = Monitor(args.minutes * 60, robot)
+        print(f"soaking {path.name} ({mode}) at {args.rate:g} Hz for {args.minutes:g} min",
+              flush=True)
+        stats = run(controller, robot, rate_hz=args.rate, stop=monitor)
+        monitor.sample()  # the end
+        controller.close()
+        print(stats.summary(), flush=True)
+        lines += report(args, mode, model, controller, robot, stats, monitor) + [""]
     print("\n" + "\n".join(lines), flush=True)
     if args.out:
         command = shlex.join([*COMMAND.split(), *sys.argv[1:]])
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(
-            f"{command}\n\n# Controller soak test\n\n" + "\n".join(lines) + "\n"
+            f"{command}\n\n# Controller soak test\n\n" + "\n".join(lines)
         )
 
 

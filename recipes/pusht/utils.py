@@ -164,7 +164,7 @@ def evaluate(model, cfg: DictConfig, nfe: int, t_end: float) -> dict:
     deterministic = cfg.eval.sampling == "deterministic"
     env, _ = make_env(cfg, seeds, int(cfg.eval.max_steps),
                       None if deterministic else int(model.noise_dim))
-    actor = FlatBatch(make_actor(model, nfe, t_end, camera_keys={keys.PIXELS: "pixels_window"}))
+    actor = FlatBatch(make_actor(model, nfe, t_end, camera_keys={keys.PIXELS: keys.PIXELS_WINDOW}))
     mode = ExplorationType.DETERMINISTIC if deterministic else ExplorationType.RANDOM
     torch.manual_seed(int(cfg.seed))
     start = time.perf_counter()

@@ -290,7 +290,7 @@ def make_lasa_sphere_env(
         Compose(
             InitTracker(),
             *extra,
-            UnsqueezeTransform(dim=-2, in_keys=[source], out_keys=["obs_step"]),
-            CatFrames(N=obs_horizon, dim=-2, in_keys=["obs_step"], out_keys=["obs_window"]),
+            UnsqueezeTransform(dim=-2, in_keys=[source], out_keys=[keys.OBS_STEP]),
+            CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
         ),
     )

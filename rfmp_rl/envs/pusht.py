@@ -353,12 +353,13 @@ def make_pusht_env(
     env = PushTEnv(batch_size, **env_kwargs)
     transforms = [
         InitTracker(),
-        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=["obs_step"]),
-        CatFrames(N=obs_horizon, dim=-2, in_keys=["obs_step"], out_keys=["obs_window"]),
+        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=[keys.OBS_STEP]),
+        CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
     ]
     if env.obs_type == "image":
         transforms += [
-            UnsqueezeTransform(dim=-4, in_keys=[keys.PIXELS], out_keys=["pixels_step"]),
-            CatFrames(N=obs_horizon, dim=-4, in_keys=["pixels_step"], out_keys=["pixels_window"]),
+            UnsqueezeTransform(dim=-4, in_keys=[keys.PIXELS], out_keys=[keys.PIXELS_STEP]),
+            CatFrames(N=obs_horizon, dim=-4, in_keys=[keys.PIXELS_STEP],
+                      out_keys=[keys.PIXELS_WINDOW]),
         ]
     return TransformedEnv(env, Compose(*transforms))

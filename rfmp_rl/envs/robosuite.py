@@ -530,8 +530,8 @@ def make_robosuite_env(
     env = RobosuiteEnv(task, batch_size, **env_kwargs)
     transforms = [
         InitTracker(),
-        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=["obs_step"]),
-        CatFrames(N=obs_horizon, dim=-2, in_keys=["obs_step"], out_keys=["obs_window"]),
+        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=[keys.OBS_STEP]),
+        CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
     ]
     for cam in env.cameras:
         transforms += [

@@ -18,8 +18,10 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import torch
+from tensordict.utils import NestedKey
 from torch import nn
 
+from rfmp_rl import keys
 from rfmp_rl.flows import (
     GeodesicPath,
     HorizonPrior,
@@ -36,7 +38,7 @@ from rfmp_rl.models import (
     ObservationEncoder,
 )
 from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
-from rfmp_rl.solvers import integrate
+from rfmp_rl.solvers import DEFAULT_SCHEDULES, integrate
 
 __all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model"]
 
@@ -226,6 +228,47 @@ class PolicyModel(nn.Module):
         return out.to(like.dtype)
 
     # ----- observations ------------------------------------------------------------------------
+    def condition_keys(
+        self,
+        observation_key: NestedKey = keys.OBSERVATION,
+        camera_keys: Mapping[str, NestedKey] | None = None,
+        gap_key: NestedKey = keys.OBS_GAP,
+    ) -> list[NestedKey]:
+        """The TensorDict keys this policy is conditioned on, in the order `encode_inputs`
+        takes them: the observation window (``obs_dim > 0``), each camera's window, the gap
+        (T_o > 2). The losses, `FlowPolicy`, `VectorField` and the ONNX graph all read their
+        inputs through this and `encode_inputs`.
+
+        Example:
+            >>> model = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4,
+            ...                                 obs_horizon=4, down_dims=[32, 64]))
+            >>> model.condition_keys()
+            ['observation', 'obs_gap']
+        """
+        cameras = dict(camera_keys or {name: name for name in self.cameras})
+        missing = [c for c in self.cameras if c not in cameras]
+        if missing:
+            raise ValueError(f"camera_keys lacks an entry for cameras {missing} (given: "
+                             f"{sorted(cameras)})")
+        out = [observation_key] if self.cfg.obs_dim > 0 else []
+        out += [cameras[name] for name in self.cameras]
+        if self.cfg.obs_horizon > 2:
+            out.append(gap_key)
+        return out
+
+    def encode_inputs(self, *inputs: torch.Tensor) -> torch.Tensor:
+        """Global condition ``(B, C)`` from the inputs named by `condition_keys`, in its order."""
+        expected = (int(self.cfg.obs_dim > 0) + len(self.cameras)
+                    + int(self.cfg.obs_horizon > 2))
+        if len(inputs) != expected:
+            raise ValueError(f"expected {expected} conditioning inputs ({self.condition_keys()}), "
+                             f"got {len(inputs)}")
+        rest = list(inputs)
+        obs = rest.pop(0) if self.cfg.obs_dim > 0 else None
+        images = {name: rest.pop(0) for name in self.cameras}
+        gap = rest.pop(0) if self.cfg.obs_horizon > 2 else None
+        return self.encode(obs, images or None, gap)
+
     def encode(
         self,
         observation: torch.Tensor | None,
@@ -375,7 +418,7 @@ class FlowModel(PolicyModel):
         ``return_intermediates`` also returns the times and the raw action chunks visited
         ``(n + 1, B, T_p, D)``.
         """
-        schedule = schedule or ("srfmp" if self.stable else "uniform")
+        schedule = schedule or DEFAULT_SCHEDULES[self.cfg.algorithm]
         x0 = self.initial_state(noise, cond.shape[0], deterministic, like=cond)
         if self.stable:
             dim = self.chunk.dim

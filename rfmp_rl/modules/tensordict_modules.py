@@ -17,23 +17,21 @@ from torchrl.envs.utils import ExplorationType, exploration_type
 
 from rfmp_rl import keys
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
+from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["VectorField", "FlowPolicy"]
 
 
 class _VectorFieldAdapter(nn.Module):
-    def __init__(self, model: FlowModel, n_cameras: int) -> None:
+    """``(*conditioning inputs, x, time) -> velocity`` (inputs as `condition_keys` orders them)."""
+
+    def __init__(self, model: FlowModel) -> None:
         super().__init__()
-        self.model, self.n_cameras = model, n_cameras
+        self.model = model
 
     def forward(self, *tensors: torch.Tensor):
-        model = self.model
-        obs = tensors[0] if model.cfg.obs_dim > 0 else None
-        offset = 1 if model.cfg.obs_dim > 0 else 0
-        images = dict(zip(model.cameras, tensors[offset : offset + self.n_cameras], strict=True))
-        x, time = tensors[-2], tensors[-1]
-        cond = model.encode(obs, images or None)
-        return model.velocity(x, time, cond)
+        *inputs, x, time = tensors
+        return self.model.velocity(x, time, self.model.encode_inputs(*inputs))
 
 
 class VectorField(TensorDictModule):
@@ -60,19 +58,16 @@ class VectorField(TensorDictModule):
         *,
         observation_key: NestedKey = keys.OBSERVATION,
         camera_keys: Mapping[str, NestedKey] | None = None,
+        gap_key: NestedKey = keys.OBS_GAP,
         state_key: NestedKey = "x_t",
         time_key: NestedKey = "time",
         velocity_key: NestedKey = "velocity",
         velocity_tau_key: NestedKey = "velocity_tau",
     ) -> None:
-        camera_keys = dict(camera_keys or {name: name for name in model.cameras})
-        in_keys = [observation_key] if model.cfg.obs_dim > 0 else []
-        in_keys += [camera_keys[name] for name in model.cameras]
+        in_keys = model.condition_keys(observation_key, camera_keys, gap_key)
         in_keys += [state_key, time_key]
         out_keys = [velocity_key, velocity_tau_key] if model.stable else [velocity_key]
-        super().__init__(
-            _VectorFieldAdapter(model, len(model.cameras)), in_keys=in_keys, out_keys=out_keys
-        )
+        super().__init__(_VectorFieldAdapter(model), in_keys=in_keys, out_keys=out_keys)
 
 
 class FlowPolicy(TensorDictModuleBase):
@@ -94,7 +89,9 @@ class FlowPolicy(TensorDictModuleBase):
 
     Args:
         model: the network (`FlowModel` or `DiffusionModel`).
-        nfe: function evaluations per chunk.
+        solver: the inference budget (`rfmp_rl.solvers.SolverConfig`; the algorithm's defaults
+            fill what it leaves out). When given, the five arguments below must stay unset.
+        nfe: function evaluations per chunk (default 1).
         method: ODE method (flows only).
         t_end: end time T of the integration (may exceed 1).
         schedule: ``"uniform"`` or ``"srfmp"`` (default: SRFMP's for SRFMP).
@@ -115,9 +112,10 @@ class FlowPolicy(TensorDictModuleBase):
         self,
         model: FlowModel | DiffusionModel,
         *,
-        nfe: int = 1,
-        method: str = "euler",
-        t_end: float = 1.0,
+        solver: SolverConfig | None = None,
+        nfe: int | None = None,
+        method: str | None = None,
+        t_end: float | None = None,
         schedule: str | None = None,
         refine_dt: float | None = None,
         observation_key: NestedKey = keys.OBSERVATION,
@@ -128,33 +126,60 @@ class FlowPolicy(TensorDictModuleBase):
     ) -> None:
         super().__init__()
         self.model = model
-        self.solver_kwargs = {
-            "nfe": int(nfe),
-            "method": method,
-            "t_end": float(t_end),
-            "schedule": schedule,
-            "refine_dt": refine_dt,
-        }
+        given = {k: v for k, v in {"nfe": nfe, "method": method, "t_end": t_end,
+                                   "schedule": schedule, "refine_dt": refine_dt}.items()
+                 if v is not None}
+        if solver is not None and given:
+            raise TypeError(f"FlowPolicy: give either solver= or {sorted(given)}, not both")
+        solver = (solver or SolverConfig(**given)).resolve(model.cfg.algorithm)
         if isinstance(model, FlowModel):  # validate the budget now, not mid-rollout
-            from rfmp_rl.solvers import step_sizes
-
-            step_sizes(
-                nfe,
-                method,
-                t_end,
-                schedule or ("srfmp" if model.stable else "uniform"),
-                model.cfg.lambda_x,
-                refine_dt,
-            )
+            solver.step_sizes(model.cfg.lambda_x)
         else:
-            model.ddim_timesteps(nfe)
+            model.ddim_timesteps(solver.nfe)
+        self.solver = solver
+        self.solver_kwargs = solver.sample_kwargs()
         self.observation_key, self.gap_key = observation_key, gap_key
         self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
         self.action_key, self.noise_key = action_key, noise_key
-        in_keys = [observation_key] if model.cfg.obs_dim > 0 else []
-        in_keys += [self.camera_keys[name] for name in model.cameras]
-        self.in_keys = in_keys
+        self.in_keys = model.condition_keys(observation_key, self.camera_keys, gap_key)
+        # per-sample dims of each input: window (2, D_obs), camera windows (2, C, H, W), gap
+        self._event_dims = ([2] if model.cfg.obs_dim > 0 else []) + [4] * len(model.cameras)
+        self._event_dims += [0] if model.cfg.obs_horizon > 2 else []
         self.out_keys = [action_key]
+
+    @classmethod
+    def from_checkpoint(
+        cls,
+        path,
+        nfe: int | None = None,
+        t_end: float | None = None,
+        *,
+        use_ema: bool = True,
+        **kwargs,
+    ) -> FlowPolicy:
+        """The policy of a checkpoint, in eval mode, integrating with the solver the checkpoint
+        stores (the one its run selected and evaluated with; the algorithm's defaults for
+        checkpoints that store none), with ``nfe`` / ``t_end`` overriding it. ``kwargs`` go to
+        `FlowPolicy` (keys).
+
+        Example:
+            >>> from rfmp_rl.checkpoint import save_checkpoint
+            >>> from rfmp_rl.modules import ModelConfig, build_model
+            >>> model = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4,
+            ...                                 down_dims=[32, 64]))
+            >>> path = save_checkpoint("srfmp.pt", model, solver=SolverConfig(nfe=3))
+            >>> FlowPolicy.from_checkpoint(path).solver.nfe, FlowPolicy.from_checkpoint(
+            ...     path, nfe=1).solver
+            (3, SolverConfig(nfe=1, t_end=1.0, method='euler', schedule='srfmp', refine_dt=None))
+        """
+        from dataclasses import replace
+
+        from rfmp_rl.checkpoint import load_checkpoint
+
+        model, payload = load_checkpoint(path, use_ema=use_ema)
+        solver = SolverConfig.from_dict(payload.get("solver") or {})
+        overrides = {k: v for k, v in {"nfe": nfe, "t_end": t_end}.items() if v is not None}
+        return cls(model.eval(), solver=replace(solver, **overrides), **kwargs)
 
     @torch.no_grad()
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
@@ -162,24 +187,17 @@ class FlowPolicy(TensorDictModuleBase):
         # inputs go to the model's device (an env on the CPU, a policy on a GPU); the action
         # comes back on the device the observations came from
         device = model.obs_normalizer.offset.device
-        obs = images = gap = None
-        if model.cfg.obs_dim > 0:
-            obs = tensordict.get(self.observation_key)
-            leading, source = obs.shape[:-2], obs.device
-            obs = obs.reshape(-1, *obs.shape[-2:]).to(device)  # (B, 2, D_obs)
-        if model.cameras:
-            images = {}
-            for name in model.cameras:
-                img = tensordict.get(self.camera_keys[name])
-                leading, source = img.shape[:-4], img.device
-                images[name] = img.reshape(-1, *img.shape[-4:]).to(device)  # (B, 2, C, H, W)
-        if model.cfg.obs_horizon > 2:
-            gap = tensordict.get(self.gap_key).reshape(-1, 1).to(device)
+        inputs = []
+        for key, dims in zip(self.in_keys, self._event_dims, strict=True):
+            value = tensordict.get(key)
+            if dims:  # windows set the batch shape: (..., 2, D_obs) or (..., 2, C, H, W)
+                leading, source = value.shape[:-dims], value.device
+            inputs.append(value.reshape(-1, *value.shape[value.ndim - dims:]).to(device))
         noise = tensordict.get(self.noise_key, None)
         if noise is not None:
             noise = noise.reshape(-1, noise.shape[-1]).to(device)
         deterministic = noise is None and exploration_type() == ExplorationType.DETERMINISTIC
-        cond = model.encode(obs, images, gap)
+        cond = model.encode_inputs(*inputs)
         action = model.sample(cond, noise, deterministic=deterministic, **self.solver_kwargs)
         action = action.reshape(*leading, *action.shape[-2:]).to(source)
         tensordict.set(self.action_key, action)

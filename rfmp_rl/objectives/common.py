@@ -60,23 +60,19 @@ class ImitationLoss(LossModule):
         self.model = model
         self.reduction = reduction
         self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
-        missing = [c for c in model.cameras if c not in self.camera_keys]
-        if missing:
-            raise ValueError(f"camera_keys lacks an entry for cameras {missing}")
+        model.condition_keys(camera_keys=self.camera_keys)  # every camera has a key
 
     def _forward_value_estimator_keys(self, **kwargs) -> None:
         pass  # no value estimator
 
+    def _condition_keys(self) -> list[NestedKey]:
+        k = self.tensor_keys
+        return self.model.condition_keys(k.observation, self.camera_keys, k.obs_gap)
+
     @property
     def in_keys(self) -> list[NestedKey]:
         k = self.tensor_keys
-        out = [k.action, k.action_is_pad]
-        if self.model.cfg.obs_dim > 0:
-            out.append(k.observation)
-        out += [self.camera_keys[c] for c in self.model.cameras]
-        if self.model.cfg.obs_horizon > 2:
-            out.append(k.obs_gap)
-        return out
+        return [k.action, k.action_is_pad, *self._condition_keys()]
 
     @property
     def out_keys(self) -> list[str]:
@@ -96,9 +92,7 @@ class ImitationLoss(LossModule):
     def _read(self, tensordict: TensorDictBase) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Return ``(condition (B, C), normalised flat chunk (B, T_p * D), valid (B, T_p))``."""
         k, model = self.tensor_keys, self.model
-        obs = self._require(tensordict, k.observation) if model.cfg.obs_dim > 0 else None
-        images = {c: self._require(tensordict, self.camera_keys[c]) for c in model.cameras}
-        gap = self._require(tensordict, k.obs_gap) if model.cfg.obs_horizon > 2 else None
+        inputs = [self._require(tensordict, key) for key in self._condition_keys()]
         action = self._require(tensordict, k.action)
         expected = (model.horizon, model.action_dim)
         if action.shape[-2:] != expected:
@@ -109,7 +103,7 @@ class ImitationLoss(LossModule):
         pad = tensordict.get(k.action_is_pad, None)
         if pad is None:
             pad = torch.zeros(action.shape[:-1], dtype=torch.bool, device=action.device)
-        cond = model.encode(obs, images or None, gap)
+        cond = model.encode_inputs(*inputs)
         return cond, model.normalize_action(action), ~pad.to(torch.bool)
 
     def _flow_target(self, tensordict: TensorDictBase):

@@ -46,6 +46,7 @@ from tqdm import tqdm
 from rfmp_rl.checkpoint import read_checkpoint, save_checkpoint
 from rfmp_rl.modules.ema import EMA
 from rfmp_rl.objectives import make_loss
+from rfmp_rl.solvers import SolverConfig
 from rfmp_rl.training.loggers import make_logger
 from rfmp_rl.training.resume import check_resumable
 from rfmp_rl.training.runtime import Runtime, rank_seed, rng_state, set_rng_state
@@ -233,6 +234,8 @@ class Trainer:
         rollout_score: ``f(ema_model) -> float`` (higher is better), computed at every
             validation on rank 0; with ``train.select_by=rollout`` it chooses ``best.pt``.
         resume: a ``last.pt`` to continue (see `rfmp_rl.training.resume`).
+        solver: the inference budget stored in the checkpoints (what the run selects and
+            evaluates with; default: the algorithm's defaults at NFE 1).
 
     Example:
         >>> from tensordict import TensorDict
@@ -272,8 +275,10 @@ class Trainer:
         rollout_score: Callable[[nn.Module], float] | None = None,
         resume: str | Path | None = None,
         progress: bool = True,
+        solver: SolverConfig | None = None,
     ) -> None:
         self.runtime, self.recipe = runtime, recipe
+        self.solver = (solver or SolverConfig()).resolve(model.cfg.algorithm)
         self.optim_cfg, self.train_cfg = optim or OptimConfig(), train or TrainConfig()
         self.logger_cfg = logger or LoggerConfig()
         self.run_dir, self.config, self.seed = Path(run_dir), dict(config or {}), int(seed)
@@ -358,7 +363,7 @@ class Trainer:
         if self.runtime.is_main:
             save_checkpoint(self.run_dir / "last.pt", self.model, self.ema, self.config,
                             training_state=self.training_state(rng, logger), step=self.step,
-                            train_minutes=self.minutes)
+                            train_minutes=self.minutes, solver=self.solver)
 
     def _load_state(self, payload: dict) -> None:
         state = payload["training_state"]
@@ -433,7 +438,8 @@ class Trainer:
         if self.sign * criterion < self.sign * self.best or not self.best_step:
             self.best, self.best_step = criterion, self.step
             save_checkpoint(self.run_dir / "best.pt", self.model, self.ema, self.config,
-                            step=self.step, val_loss=val, train_minutes=self.minutes, **extra)
+                            step=self.step, val_loss=val, train_minutes=self.minutes,
+                            solver=self.solver, **extra)
 
     def fit(self) -> FitResult:
         rt, cfg = self.runtime, self.train_cfg

@@ -71,9 +71,9 @@ SCRIPT = textwrap.dedent("""
     assert np.isfinite(robot.episode_return)
     print("EPISODE OK", stats.steps, round(robot.episode_return, 3))
 
-    sys.argv = ["rfmp_deploy.run", "--model", model, "--check", "--runs", "3"]
+    sys.argv = ["rfmp_deploy", "--model", model, "--check", "--runs", "3"]
     try:
-        runpy.run_module("rfmp_deploy.run", run_name="__main__")
+        runpy.run_module("rfmp_deploy.cli", run_name="__main__")
     except SystemExit as e:
         assert e.code == 0, e.code
 

@@ -89,7 +89,7 @@ def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
             str(ckpt),
             "--nfe",
             "2",
-            "--horizon",
+            "--t-end",
             "1.2",
             "--method",
             "midpoint",

@@ -1,7 +1,7 @@
 """Command line: check a model on the robot PC, or drive a robot with it.
 
-    PYTHONPATH=deploy python -m rfmp_deploy.run --model policy.onnx --check
-    PYTHONPATH=deploy:. python -m rfmp_deploy.run --model policy.onnx --robot my_arm:make_robot
+    PYTHONPATH=deploy python -m rfmp_deploy --model policy.onnx --check
+    PYTHONPATH=deploy:. python -m rfmp_deploy --model policy.onnx --robot my_arm:make_robot
 
 ``--check`` loads the model (validating its metadata against the graph), prints the metadata
 summary, runs 20 inferences with random valid inputs and prints the latency (median, p95)
@@ -80,7 +80,7 @@ def _load_robot(spec: str) -> RobotInterface:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m rfmp_deploy.run", description=__doc__,
+    parser = argparse.ArgumentParser(prog="python -m rfmp_deploy", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--model", required=True, help="the exported .onnx policy")
     parser.add_argument("--check", action="store_true",
