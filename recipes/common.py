@@ -178,6 +178,16 @@ def eval_model(path: Path, cfg: DictConfig, runtime=None):
     return model.eval(), payload
 
 
+def deploy_classes():
+    """``(Controller, Policy)`` of the torch-free deploy package (``deploy/rfmp_deploy``), as a
+    robot PC runs it."""
+    if str(ROOT / "deploy") not in sys.path:
+        sys.path.insert(0, str(ROOT / "deploy"))
+    from rfmp_deploy import Controller, Policy
+
+    return Controller, Policy
+
+
 def exit_code(result) -> int:
     """The process exit status of a training run: 0, or 128 + the signal that stopped it."""
     import signal

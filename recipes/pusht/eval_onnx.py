@@ -27,8 +27,8 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from utils import (  # noqa: I001
-    ROOT,
     check_config,
+    deploy_classes,
     evaluate,
     load_for_eval,
     make_env,
@@ -41,18 +41,9 @@ from rfmp_rl.eval.controller import run_controller, split_fields
 from rfmp_rl.onnx_export import calibration_inputs, export_onnx
 
 
-def _deploy():
-    """``(Controller, Policy)`` of the torch-free deploy package (``deploy/rfmp_deploy``)."""
-    if str(ROOT / "deploy") not in sys.path:
-        sys.path.insert(0, str(ROOT / "deploy"))
-    from rfmp_deploy import Controller, Policy
-
-    return Controller, Policy
-
-
 def run_onnx(path: Path, task: DictConfig, seeds: list[int]):
     """`ControllerRollouts` of the deploy controller on ``path``: max coverage per seed."""
-    Controller, Policy = _deploy()
+    Controller, Policy = deploy_classes()
     controller = Controller(Policy(str(path), intra_op_threads=int(task.threads)),
                             deterministic=True)
     fields = controller.meta.observation_keys

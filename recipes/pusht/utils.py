@@ -21,6 +21,7 @@ from common import (  # noqa: E402
     ROOT,
     build_training,
     check_runtime_config,
+    deploy_classes,
     end_time,
     eval_model,
     exit_code,
@@ -45,7 +46,7 @@ from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # 
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
 __all__ = ["ROOT", "build_training", "resolve", "end_time", "fit", "load_for_eval", "start_run",
-           "eval_model", "exit_code"]
+           "eval_model", "exit_code", "deploy_classes"]
 
 CONTROL_DT = 0.1  # Push-T runs at 10 Hz
 

@@ -28,8 +28,8 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 from utils import (  # noqa: I001
-    ROOT,
     check_config,
+    deploy_classes,
     load_for_eval,
     make_env,
     sweep,
@@ -40,19 +40,10 @@ from rfmp_rl.eval.controller import run_controller
 from rfmp_rl.onnx_export import export_onnx
 
 
-def _controller_types():
-    """``(Controller, Policy)`` of the torch-free deploy package (``deploy/rfmp_deploy``)."""
-    if str(ROOT / "deploy") not in sys.path:
-        sys.path.insert(0, str(ROOT / "deploy"))
-    from rfmp_deploy import Controller, Policy
-
-    return Controller, Policy
-
-
 def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> dict:
     """One episode per seed with the deploy controller; per-seed success, step latencies (s) and
     the safety events other than ``clamped`` as ``(seed, Event)``."""
-    Controller, Policy = _controller_types()
+    Controller, Policy = deploy_classes()
     controller = Controller(Policy(str(onnx_path), intra_op_threads=int(task.threads)),
                             deterministic=True)
     fields = [f.key for f in controller.meta.observation_keys]

@@ -23,6 +23,7 @@ from common import (  # noqa: E402
     ROOT,
     build_training,
     check_runtime_config,
+    deploy_classes,
     end_time,
     eval_model,
     exit_code,
@@ -52,7 +53,7 @@ from rfmp_rl.manifolds.quaternion import hemisphere_continuous  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
 
 __all__ = ["ROOT", "build_training", "fit", "end_time", "load_for_eval", "start_run",
-           "eval_model", "exit_code"]
+           "eval_model", "exit_code", "deploy_classes"]
 
 CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
