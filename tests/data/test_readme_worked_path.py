@@ -31,7 +31,7 @@ ROOT = Path(__file__).resolve().parents[2]
 def worked_path() -> list[tuple[str, str]]:
     """The (language, code) blocks of the README section, in order."""
     text = (ROOT / "README.md").read_text()
-    section = text.split("### From a bag to a controller", 1)[1].split("\n## ", 1)[0]
+    section = text.split("## From a bag to a controller", 1)[1].split("\n## ", 1)[0]
     return re.findall(r"```(\w+)\n(.*?)```", section, flags=re.S)
 
 
