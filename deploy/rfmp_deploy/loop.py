@@ -61,8 +61,10 @@ class RunStats:
     Attributes:
         steps: control steps completed.
         overruns: steps whose work (read, step, send) took longer than the period.
-        missed_ticks: control ticks skipped because of overruns (the loop does not burst to
-            catch up; it waits for the next tick on the original grid).
+        missed_ticks: control ticks skipped because a step ended after the next tick: an
+            overrun, or a step that started late because the process woke late from its sleep
+            (the loop does not burst to catch up; it waits for the next tick on the original
+            grid).
         mean_step_time: mean seconds spent in read + step + send.
         max_step_time: the longest such time.
         duration: seconds from the first tick to the end.

@@ -287,7 +287,15 @@ Controller's observation window. The comparison the targets refer to is at 2 thr
 rows are a control. The machine may be shared (see the load averages): when the load approaches
 the CPU count, every 2-thread parallel op waits for a busy sibling core, torch's OpenMP barriers
 (hundreds of ms per call) far more than onnxruntime's pool, so 2-thread eager figures then measure
-the contention as much as the framework; the 1-thread rows do not have that problem."""
+the contention as much as the framework; the 1-thread rows do not have that problem.
+
+Reduced precision on the measured CPU (AMD EPYC, AVX-512 VNNI): static int8 (`QLinearConv`
+with calibrated activation ranges) is the one that is faster; fp16 halves the file but
+onnxruntime's CPU provider runs its convolutions through casts to float32, so it costs what
+float32 costs (fp16 is for execution providers with half-precision kernels: CUDA, ARM CPUs);
+dynamic int8 quantises the activations at every call (`ConvInteger`), which costs what the int8
+arithmetic saves. The closed-loop effect of each on a trained policy:
+`results/pusht_onnx_precision.md`."""
 
 
 def main() -> None:

@@ -187,6 +187,9 @@ def report(args, mode: str, model: str, controller: Controller, robot: FakeRobot
         f"| RSS growth over the second half ({t[-1] / 120:.1f} min to end) | "
         f"{(rss[-1] - half) / 1e6:+.2f} MB | |",
         "",
+        "Missed ticks without an overrun are steps that started late (the process woke late "
+        "from its sleep) and so ended past the next tick; the step's own work fit the period.",
+        "",
         f"RSS (MB) every {RSS_EVERY:g} s, one row per minute:",
         "",
         "| minute | " + " | ".join(f"+{k * RSS_EVERY:g} s" for k in range(6)) + " |",
