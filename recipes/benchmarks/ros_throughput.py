@@ -135,8 +135,7 @@ def main() -> None:
     load_before = os.getloadavg()[0]
     rows = [measure(fmt, args.seconds, args.repeats) for fmt in args.formats.split(",")]
     load_after = os.getloadavg()[0]
-    python = os.path.relpath(sys.executable, Path.cwd())
-    command = shlex.join([python, *sys.argv])
+    command = shlex.join([".venv/bin/python", *sys.argv])  # from the repository root
     threads = os.environ.get("OMP_NUM_THREADS")
     if threads is not None:
         command = f"OMP_NUM_THREADS={threads} {command}"
