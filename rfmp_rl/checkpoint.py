@@ -16,7 +16,13 @@ import torch
 
 from rfmp_rl import __version__
 from rfmp_rl.modules.ema import EMA
-from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel, ModelConfig, build_model
+from rfmp_rl.modules.policy_model import (
+    DiffusionModel,
+    FlowModel,
+    ModelConfig,
+    build_model,
+    unwrap_policy_model,
+)
 from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["save_checkpoint", "load_checkpoint", "read_checkpoint", "CHECKPOINT_FORMAT"]
@@ -37,7 +43,8 @@ def save_checkpoint(
 
     Args:
         path: destination file.
-        model: the trained network (its normalisers are part of its state).
+        model: the trained network (its normalisers are part of its state), or a `FlowPolicy`
+            / ``MultiStepActorWrapper`` around it.
         ema: the EMA of the weights, if any.
         config: the run configuration (plain, JSON-like values), stored for reproducibility.
         training_state: what a resumed run needs beyond the weights (optimiser, step, RNG
@@ -59,6 +66,7 @@ def save_checkpoint(
         'srfmp'
     """
     path = Path(path)
+    model = unwrap_policy_model(model, "save_checkpoint")
     path.parent.mkdir(parents=True, exist_ok=True)
     cfg: ModelConfig = model.cfg
     payload = {

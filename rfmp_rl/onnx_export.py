@@ -48,7 +48,7 @@ from torch import nn
 
 from rfmp_rl import __version__
 from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices
-from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel
+from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel, unwrap_policy_model
 from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["InferenceGraph", "ExportReport", "export_onnx", "onnx_metadata", "ONNX_FORMAT",
@@ -97,6 +97,7 @@ class InferenceGraph(nn.Module):
         solver: SolverConfig | None = None,
     ) -> None:
         super().__init__()
+        model = unwrap_policy_model(model, "InferenceGraph")
         self.model = model
         self.solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
         if model.cfg.obs_horizon > 2:
@@ -407,7 +408,7 @@ def export_onnx(
     if precision not in EXPORT_PRECISIONS:
         raise ValueError(f"precision must be one of {EXPORT_PRECISIONS}, got {precision!r}")
     atol = PARITY_LIMITS[precision] if atol is None else float(atol)
-    model = model.eval()
+    model = unwrap_policy_model(model, "export_onnx").eval()
     solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
     graph = InferenceGraph(model, solver=solver).eval()
     exported = graph

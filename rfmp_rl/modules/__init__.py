@@ -8,6 +8,7 @@ from rfmp_rl.modules.policy_model import (
     ModelConfig,
     PolicyModel,
     build_model,
+    unwrap_policy_model,
 )
 from rfmp_rl.modules.tensordict_modules import FlowPolicy, VectorField
 
@@ -20,6 +21,7 @@ __all__ = [
     "FlowModel",
     "DiffusionModel",
     "build_model",
+    "unwrap_policy_model",
     "VectorField",
     "FlowPolicy",
 ]

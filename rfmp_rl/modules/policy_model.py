@@ -40,7 +40,8 @@ from rfmp_rl.models import (
 from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
 from rfmp_rl.solvers import DEFAULT_SCHEDULES, integrate
 
-__all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model"]
+__all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model",
+           "unwrap_policy_model"]
 
 ALGORITHMS = ("rfmp", "srfmp", "ddim")
 
@@ -542,3 +543,32 @@ def build_model(cfg: ModelConfig | Mapping[str, Any]) -> FlowModel | DiffusionMo
     if not isinstance(cfg, ModelConfig):
         cfg = ModelConfig.from_dict(cfg)
     return DiffusionModel(cfg) if cfg.algorithm == "ddim" else FlowModel(cfg)
+
+
+def unwrap_policy_model(obj: Any, what: str) -> PolicyModel:
+    """The `PolicyModel` inside ``obj``: the model itself, a `FlowPolicy`, TorchRL's
+    ``MultiStepActorWrapper`` around one, a ``TensorDictModule``, an `EMA` (its averaged copy) or
+    a ``DistributedDataParallel`` wrapper. ``what`` names the caller in the error.
+
+    Raises:
+        TypeError: naming what was given and what is expected.
+
+    Example:
+        >>> model = build_model(ModelConfig("rfmp", "S2", obs_dim=3, horizon=4,
+        ...                                 down_dims=[32, 64]))
+        >>> from rfmp_rl.modules import FlowPolicy
+        >>> unwrap_policy_model(FlowPolicy(model), "make_loss") is model
+        True
+    """
+    given = obj
+    for _ in range(8):
+        if isinstance(obj, PolicyModel):
+            return obj
+        inner = next((getattr(obj, name) for name in ("model", "actor", "module")
+                      if isinstance(getattr(obj, name, None), nn.Module)), None)
+        if inner is None:
+            break
+        obj = inner
+    raise TypeError(f"{what} takes a policy model (FlowModel or DiffusionModel), a FlowPolicy, "
+                    f"or a wrapper of one (MultiStepActorWrapper, EMA, DistributedDataParallel); "
+                    f"got {type(given).__name__}")

@@ -21,6 +21,9 @@ from rfmp_rl.solvers import SolverConfig
 
 __all__ = ["VectorField", "FlowPolicy"]
 
+#: Exploration types under which a policy acts from the prior's mode (no random draw).
+_MODE_TYPES = (ExplorationType.DETERMINISTIC, ExplorationType.MODE, ExplorationType.MEAN)
+
 
 class _VectorFieldAdapter(nn.Module):
     """``(*conditioning inputs, x, time) -> velocity`` (inputs as `condition_keys` orders them)."""
@@ -74,8 +77,9 @@ class FlowPolicy(TensorDictModuleBase):
     """Acting policy: observation window in, action chunk ``(..., T_p, D)`` out.
 
     Samples with a fixed solver budget. Under
-    ``set_exploration_type(ExplorationType.DETERMINISTIC)`` it starts from the prior's mode (a
-    fixed point on the manifold) instead of a random sample, so evaluation is reproducible. If
+    ``set_exploration_type(ExplorationType.DETERMINISTIC)`` (or ``MODE``, or ``MEAN``) it starts
+    from the prior's mode (a fixed point on the manifold) instead of a random sample, so
+    evaluation is reproducible; under ``RANDOM`` it samples the prior. If
     the input holds ``noise_key`` (standard-normal prior noise ``(..., noise_dim)``), that noise
     is used — the same input an exported ONNX policy takes. Works with `FlowModel` (RFMP,
     SRFMP) and `DiffusionModel` (DDIM, where ``nfe`` is the number of DDIM steps).
@@ -196,7 +200,7 @@ class FlowPolicy(TensorDictModuleBase):
         noise = tensordict.get(self.noise_key, None)
         if noise is not None:
             noise = noise.reshape(-1, noise.shape[-1]).to(device)
-        deterministic = noise is None and exploration_type() == ExplorationType.DETERMINISTIC
+        deterministic = noise is None and exploration_type() in _MODE_TYPES
         cond = model.encode_inputs(*inputs)
         action = model.sample(cond, noise, deterministic=deterministic, **self.solver_kwargs)
         action = action.reshape(*leading, *action.shape[-2:]).to(source)

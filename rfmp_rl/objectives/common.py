@@ -11,7 +11,7 @@ from tensordict.utils import NestedKey
 from torchrl.objectives import LossModule
 
 from rfmp_rl import keys
-from rfmp_rl.modules.policy_model import PolicyModel
+from rfmp_rl.modules.policy_model import PolicyModel, unwrap_policy_model
 
 __all__ = ["ImitationLoss"]
 
@@ -57,7 +57,7 @@ class ImitationLoss(LossModule):
         reduction: str = "mean",
     ) -> None:
         super().__init__()
-        self.model = model
+        self.model = model = unwrap_policy_model(model, type(self).__name__)
         self.reduction = reduction
         self.camera_keys = dict(camera_keys or {name: name for name in model.cameras})
         model.condition_keys(camera_keys=self.camera_keys)  # every camera has a key

@@ -5,7 +5,7 @@ from __future__ import annotations
 import torch
 from tensordict import TensorDict, TensorDictBase
 
-from rfmp_rl.modules.policy_model import DiffusionModel
+from rfmp_rl.modules.policy_model import DiffusionModel, unwrap_policy_model
 from rfmp_rl.objectives.common import ImitationLoss
 
 __all__ = ["DiffusionPolicyLoss"]
@@ -31,6 +31,7 @@ class DiffusionPolicyLoss(ImitationLoss):
     _out_keys = ("loss_diffusion",)
 
     def __init__(self, model: DiffusionModel, camera_keys=None, reduction: str = "mean") -> None:
+        model = unwrap_policy_model(model, "DiffusionPolicyLoss")  # a FlowPolicy or actor works too
         if not isinstance(model, DiffusionModel):
             raise TypeError("DiffusionPolicyLoss needs a DiffusionModel (algorithm='ddim')")
         super().__init__(model, camera_keys, reduction)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from tensordict import TensorDict, TensorDictBase
 
-from rfmp_rl.modules.policy_model import FlowModel
+from rfmp_rl.modules.policy_model import FlowModel, unwrap_policy_model
 from rfmp_rl.objectives.common import ImitationLoss
 
 __all__ = ["SRFMPLoss"]
@@ -35,6 +35,7 @@ class SRFMPLoss(ImitationLoss):
     _out_keys = ("loss_srfmp", "loss_tau", "tau_mean", "target_norm")
 
     def __init__(self, model: FlowModel, camera_keys=None, reduction: str = "mean") -> None:
+        model = unwrap_policy_model(model, "SRFMPLoss")  # a FlowPolicy or actor works too
         if not isinstance(model, FlowModel) or not model.stable:
             raise TypeError("SRFMPLoss needs an SRFMP FlowModel (ModelConfig.algorithm='srfmp')")
         super().__init__(model, camera_keys, reduction)
