@@ -101,6 +101,11 @@ class FlowPolicy(TensorDictModuleBase):
         schedule: ``"uniform"`` or ``"srfmp"`` (default: SRFMP's for SRFMP).
         refine_dt: SRFMP refinement step.
         observation_key, camera_keys, gap_key, action_key, noise_key: TensorDict keys.
+        spec: the action's TensorSpec (or a ``Composite`` holding ``action_key``), kept as
+            ``policy.spec`` as TorchRL's actors keep theirs.
+        safe: clamp every action to the demonstrated range (the action normaliser's min/max on
+            the Euclidean coordinates; manifold parts are projected onto the manifold), then,
+            with ``spec``, project it into the spec (``spec.project``).
 
     Example:
         >>> from tensordict import TensorDict
@@ -127,9 +132,14 @@ class FlowPolicy(TensorDictModuleBase):
         gap_key: NestedKey = keys.OBS_GAP,
         action_key: NestedKey = keys.ACTION,
         noise_key: NestedKey = keys.PRIOR_NOISE,
+        spec=None,
+        safe: bool = False,
     ) -> None:
         super().__init__()
         self.model = model
+        if spec is not None and hasattr(spec, "keys") and action_key in spec.keys(True):
+            spec = spec[action_key]
+        self.spec, self.safe = spec, bool(safe)
         given = {k: v for k, v in {"nfe": nfe, "method": method, "t_end": t_end,
                                    "schedule": schedule, "refine_dt": refine_dt}.items()
                  if v is not None}
@@ -150,6 +160,14 @@ class FlowPolicy(TensorDictModuleBase):
         self._event_dims = ([2] if model.cfg.obs_dim > 0 else []) + [4] * len(model.cameras)
         self._event_dims += [0] if model.cfg.obs_horizon > 2 else []
         self.out_keys = [action_key]
+
+    def _clamp(self, action: torch.Tensor) -> torch.Tensor:
+        """``(B, T_p, D)`` actions inside the demonstrated range, manifold parts on the manifold."""
+        norm = self.model.action_normalizer
+        inf = torch.full_like(norm.data_min, float("inf"))
+        low = torch.where(norm.mask, norm.data_min, -inf).to(action.dtype)
+        high = torch.where(norm.mask, norm.data_max, inf).to(action.dtype)
+        return self.model.step_manifold.projx(torch.maximum(torch.minimum(action, high), low))
 
     @classmethod
     def from_checkpoint(
@@ -203,6 +221,10 @@ class FlowPolicy(TensorDictModuleBase):
         deterministic = noise is None and exploration_type() in _MODE_TYPES
         cond = model.encode_inputs(*inputs)
         action = model.sample(cond, noise, deterministic=deterministic, **self.solver_kwargs)
+        if self.safe:
+            action = self._clamp(action)
         action = action.reshape(*leading, *action.shape[-2:]).to(source)
+        if self.safe and self.spec is not None:
+            action = self.spec.project(action)
         tensordict.set(self.action_key, action)
         return tensordict

@@ -45,3 +45,26 @@ def test_every_deterministic_exploration_type_acts_from_the_mode(make_tiny_model
     with set_exploration_type(ExplorationType.RANDOM):
         c, d = policy(td.clone())["action"], policy(td.clone())["action"]
     assert not torch.allclose(c, d)
+
+
+def test_safe_policy_keeps_actions_in_the_demonstrated_range_and_its_spec(make_tiny_model):
+    from torchrl.data import Bounded
+
+    model = make_tiny_model("rfmp", "R3 x S3 x R1", horizon=4)
+    chunk = model.chunk.unflatten(model.chunk.random_base(64))
+    model.action_normalizer.fit(chunk * 0.01)  # a tiny demonstrated range
+    model.eval()
+    with torch.no_grad():  # an untrained field overshoots the range
+        model.network.final[-1].bias.fill_(5.0)
+    spec = Bounded(-0.005, 0.005, shape=(4, 8))
+    td = TensorDict({"observation": torch.randn(2, 2, 3)}, [2])
+    raw = FlowPolicy(model, nfe=1)(td.clone())["action"]
+    safe = FlowPolicy(model, nfe=1, safe=True)(td.clone())["action"]
+    norm = model.action_normalizer
+    assert (raw[..., :3] > norm.data_max[:3]).any()
+    assert (safe[..., :3] <= norm.data_max[:3] + 1e-6).all()
+    assert (safe[..., :3] >= norm.data_min[:3] - 1e-6).all()
+    torch.testing.assert_close(safe[..., 3:7].norm(dim=-1), torch.ones(2, 4))
+    projected = FlowPolicy(model, nfe=1, safe=True, spec=spec)(td.clone())["action"]
+    assert projected.abs().max() <= 0.005 + 1e-7
+    assert FlowPolicy(model, spec=spec).spec is spec
