@@ -3,6 +3,7 @@
     python export/to_onnx.py --checkpoint runs/x/ckpt.pt [--nfe 1] [--t-end 1.0]
         [--method euler] [--schedule srfmp] [--out policy.onnx] [--opset 18] [--raw-weights]
         [--precision fp32|fp16|int8|int8-dynamic] [--calibration STORE] [--max-diff X]
+        [--rate HZ]
 
 Writes one ONNX graph (normalise -> encode -> NFE solver steps with manifold maps ->
 unnormalise), checks it with ``onnx.checker``, runs it in onnxruntime against the PyTorch
@@ -11,7 +12,9 @@ non-zero if the difference exceeds 1e-4 (in normalised action units: Euclidean c
 divided by their half-range) or a sphere component is off the manifold by > 1e-5.
 The EMA weights are exported unless ``--raw-weights`` is given. The solver settings not given
 on the command line come from the checkpoint (the `SolverConfig` its run stored; for older
-checkpoints, the algorithm's defaults at NFE 1).
+checkpoints, the algorithm's defaults at NFE 1). The control rate written into the metadata is
+``--rate``, else the one the checkpoint carries (its environment's); a checkpoint without one
+needs ``--rate``.
 
 ``--precision`` exports the networks (observation encoder, UNet) in float16 or int8 while the
 normalisation, manifold maps and solver steps stay float32 (`rfmp_rl.onnx_export`); the
@@ -90,11 +93,26 @@ def main(argv: list[str] | None = None) -> int:
                         help="int8: observation windows drawn from --calibration")
     parser.add_argument("--max-diff", type=float, default=None,
                         help="parity limit in normalised action units (default per precision)")
+    parser.add_argument("--rate", type=float, default=None,
+                        help="control rate in Hz written into the metadata (default: the "
+                        "checkpoint's)")
     args = parser.parse_args(argv)
     if args.calibration and args.precision != "int8":
         parser.error("--calibration applies to --precision int8 only")
 
-    model, payload = load_checkpoint(args.checkpoint, use_ema=not args.raw_weights)
+    try:
+        model, payload = load_checkpoint(args.checkpoint, use_ema=not args.raw_weights)
+    except (FileNotFoundError, ValueError) as err:
+        print(f"export failed: {err}", file=sys.stderr)
+        return 1
+    rate = args.rate if args.rate is not None else payload.get("control_rate_hz")
+    if rate is None:
+        print(f"export failed: {args.checkpoint} carries no control rate: give the rate the "
+              "policy's actions are executed at with --rate HZ", file=sys.stderr)
+        return 1
+    if not rate > 0:
+        print(f"export failed: --rate must be > 0 Hz, got {rate}", file=sys.stderr)
+        return 1
     given = {"nfe": args.nfe, "t_end": args.t_end, "method": args.method,
              "schedule": args.schedule, "refine_dt": args.refine_dt}
     try:
@@ -123,6 +141,7 @@ def main(argv: list[str] | None = None) -> int:
             atol=args.max_diff,
             precision=args.precision,
             calibration=calibration,
+            control_rate_hz=rate,
         )
     except (RuntimeError, ValueError, OSError) as err:
         print(f"export failed: {err}", file=sys.stderr)

@@ -144,10 +144,11 @@ def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, ma
 
 
 def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,
-        camera_keys=None, rollout_score=None):
+        camera_keys=None, rollout_score=None, loss=None, control_rate_hz=None):
     """Train with the library's engine (`rfmp_rl.training.Trainer`) and the recipe's settings
-    (``optim``, ``train``, ``logger``). ``config.yaml`` is written once the engine has accepted
-    the settings (a refused resume writes nothing)."""
+    (``optim``, ``train``, ``logger``), the loss options ``loss`` (`LossConfig`) and the env's
+    ``control_rate_hz`` (both stored in the checkpoints). ``config.yaml`` is written once the
+    engine has accepted the settings (a refused resume writes nothing)."""
     from rfmp_rl.training import LoggerConfig, OptimConfig, TrainConfig, Trainer
 
     trainer = Trainer(
@@ -156,7 +157,7 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
         logger=LoggerConfig.from_config(cfg.get("logger", "csv")),
         config=OmegaConf.to_container(cfg, resolve=True), seed=int(cfg.seed),
         camera_keys=camera_keys, rollout_score=rollout_score, resume=resume,
-        solver=run_solver(cfg),
+        solver=run_solver(cfg), loss=loss, control_rate_hz=control_rate_hz,
     )
     if runtime.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)

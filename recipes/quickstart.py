@@ -50,6 +50,7 @@ from rfmp_rl.envs import make_lasa_sphere_env  # noqa: E402
 from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw  # noqa: E402
 from rfmp_rl.manifolds import Sphere  # noqa: E402
 from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model  # noqa: E402
+from rfmp_rl.objectives import LossConfig  # noqa: E402
 from rfmp_rl.solvers import SolverConfig  # noqa: E402
 from rfmp_rl.training import (  # noqa: E402
     LoggerConfig,
@@ -96,6 +97,22 @@ def make_replay_buffer(demos: dict[str, torch.Tensor], cfg: DictConfig) -> Tenso
 
 
 # ----- training --------------------------------------------------------------------------------
+#: The rate the LASA flows are rolled out at (stored in the checkpoints, the ONNX metadata's).
+CONTROL_RATE_HZ = 10.0
+
+
+def loss_config(algorithm: str, cfg: DictConfig) -> LossConfig:
+    """The loss's training-time options: SRFMP's time sampling from the ``srfmp_*`` keys."""
+    srfmp = algorithm == "srfmp"
+    return LossConfig(
+        time_sampling=cfg.srfmp_time_sampling if srfmp else "uniform",
+        time_max=cfg.srfmp_time_max if srfmp else 1.0,
+        t0_fraction=cfg.srfmp_t0_fraction if srfmp else 0.0,
+        lambda_x=cfg.lambda_x,
+        lambda_tau=cfg.lambda_tau,
+    )
+
+
 def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictConfig, runtime,
           run_dir: Path):
     model_cfg = ModelConfig(
@@ -106,16 +123,11 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
         obs_dim=3 + n_shapes,
         obs_manifold=f"S2 x R{n_shapes}",  # the sphere point is left unnormalised
         obs_keys=[["point", 3], ["shape", n_shapes]],
-        time_sampling=cfg.srfmp_time_sampling if algorithm == "srfmp" else "uniform",
-        time_max=cfg.srfmp_time_max if algorithm == "srfmp" else 1.0,
-        t0_fraction=cfg.srfmp_t0_fraction if algorithm == "srfmp" else 0.0,
         unet_preset=cfg.preset,
         down_dims=list(cfg.down_dims) if cfg.down_dims else None,
         prior_sphere=cfg.prior,
         prior_scale=cfg.prior_scale,
         lambda_x=cfg.lambda_x,
-        lambda_tau=cfg.lambda_tau,
-        control_rate_hz=10.0,
     )
     model = build_model(model_cfg)
     data = rb.storage.get(torch.arange(len(rb)))
@@ -131,7 +143,7 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
                           val_batches=1, log_every=max(1, cfg.steps // 50),
                           checkpoint_every=cfg.steps),
         logger=LoggerConfig.from_config(cfg.logger), config=OmegaConf.to_container(cfg),
-        seed=cfg.seed,
+        seed=cfg.seed, loss=loss_config(algorithm, cfg), control_rate_hz=CONTROL_RATE_HZ,
     )
     start = time.perf_counter()
     if trainer.fit().interrupted:
@@ -347,6 +359,8 @@ def main(cfg: DictConfig) -> None:
             ema,
             config=OmegaConf.to_container(cfg, resolve=True),
             solver=SolverConfig(nfe=1),  # the exported and deployed budget
+            loss=loss_config(algorithm, cfg),
+            control_rate_hz=CONTROL_RATE_HZ,
             steps=cfg.steps,
         )
         models[algorithm] = ema.module.eval().cpu().set_precision("fp32")  # CPU rollouts, fp32

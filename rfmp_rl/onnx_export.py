@@ -125,9 +125,15 @@ def _solver(model, solver, nfe, method, t_end, schedule, refine_dt) -> SolverCon
     return solver.resolve(model.cfg.algorithm)
 
 
-def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
-    """The ``rfmp_rl.onnx/1`` metadata for an inference graph."""
+def onnx_metadata(graph: InferenceGraph, control_rate_hz: float | None = None) -> dict[str, str]:
+    """The ``rfmp_rl.onnx/1`` metadata for an inference graph executed at ``control_rate_hz``
+    (the environment's rate; a checkpoint carries it as ``payload["control_rate_hz"]``)."""
     model, cfg = graph.model, graph.model.cfg
+    if control_rate_hz is None or not float(control_rate_hz) > 0:
+        raise ValueError(
+            f"control_rate_hz must be the rate (Hz, > 0) the policy's actions are executed at, "
+            f"got {control_rate_hz!r} (export/to_onnx.py: --rate)"
+        )
     if not bool(model.action_normalizer.fitted):
         raise ValueError(
             "the action normaliser was never fitted (no action statistics): refusing to export a "
@@ -169,7 +175,7 @@ def onnx_metadata(graph: InferenceGraph) -> dict[str, str]:
         "obs_horizon": str(cfg.obs_horizon),
         "horizon": str(cfg.horizon),
         "action_steps": str(cfg.action_steps),
-        "control_rate_hz": repr(float(cfg.control_rate_hz)),
+        "control_rate_hz": repr(float(control_rate_hz)),
         "inputs": json.dumps(inputs),
         "observation_keys": json.dumps([{"key": k, "dim": int(d)} for k, d in cfg.obs_keys]),
         "action_manifold": json.dumps(model.step_manifold.spec()),
@@ -382,10 +388,13 @@ def export_onnx(
     precision: str = "fp32",
     calibration: Iterable[Sequence[torch.Tensor]] | None = None,
     solver: SolverConfig | None = None,
+    control_rate_hz: float | None = None,
 ) -> ExportReport:
     """Export, check with ``onnx.checker``, and compare onnxruntime with float32 PyTorch.
 
     Args:
+        control_rate_hz: the rate (Hz) the actions are executed at, written into the metadata
+            (required; a checkpoint carries its environment's as ``payload["control_rate_hz"]``).
         nfe, method, t_end, schedule, refine_dt: the solver unrolled in the graph, or
             ``solver``: a `SolverConfig` (then leave ``nfe`` unset).
         precision: one of `EXPORT_PRECISIONS` (see the module docstring).
@@ -415,7 +424,7 @@ def export_onnx(
     if precision == "fp16":
         half = copy.deepcopy(model).store_networks_in(torch.float16)
         exported = InferenceGraph(half, solver=solver).eval()
-    metadata = onnx_metadata(graph)
+    metadata = onnx_metadata(graph, control_rate_hz)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     generator = torch.Generator().manual_seed(0)

@@ -175,8 +175,9 @@ class _Clocked:
 def check_parity(checkpoint: Path, out: Path, nfe: int = 1) -> tuple[float, float]:
     """Export the EMA policy of ``checkpoint`` at ``nfe`` (CPU, fp32); ``(max |onnxruntime -
     torch| in normalised action units, max sphere error)``, whatever their size."""
-    model, _ = load_checkpoint(checkpoint, use_ema=True)
-    report = export_onnx(model, out, nfe, atol=math.inf, sphere_tol=math.inf, latency_runs=2)
+    model, payload = load_checkpoint(checkpoint, use_ema=True)
+    report = export_onnx(model, out, nfe, atol=math.inf, sphere_tol=math.inf, latency_runs=2,
+                         control_rate_hz=payload["control_rate_hz"])
     return report.max_abs_diff, report.max_sphere_error
 
 

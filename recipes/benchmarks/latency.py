@@ -56,6 +56,7 @@ from rfmp_rl.modules import FlowModel, build_model  # noqa: E402
 from rfmp_rl.onnx_export import export_onnx  # noqa: E402
 
 PATHS = ("policy", "network", "eager", "deploy")
+RATE_HZ = 10.0  # Push-T's control rate, written into the exported metadata
 COMMAND = ".venv/bin/python recipes/benchmarks/latency.py"
 
 
@@ -73,7 +74,8 @@ def make_policy(preset: str, seed: int = 0) -> FlowModel:
 def export_policy(preset: str, path: str | Path) -> None:
     """Export `make_policy(preset)` at NFE 1 to ``path`` (parity-checked by `export_onnx`)."""
     torch.set_num_threads(2)
-    print(export_onnx(make_policy(preset), path, nfe=1).summary(), flush=True)
+    print(export_onnx(make_policy(preset), path, nfe=1, control_rate_hz=RATE_HZ).summary(),
+          flush=True)
 
 
 class BareNetwork(nn.Module):
@@ -138,13 +140,13 @@ def export_all(
     policy_path = workdir / f"pusht_state_srfmp_{preset}_nfe1.onnx"
     network_path = workdir / f"pusht_state_srfmp_{preset}_network.onnx"
     start = time.perf_counter()
-    report = export_onnx(model, policy_path, nfe=1)
+    report = export_onnx(model, policy_path, nfe=1, control_rate_hz=RATE_HZ)
     export_network(model, network_path)
     variants = {}
     for precision in precisions:
         path = workdir / f"pusht_state_srfmp_{preset}_nfe1_{precision}.onnx"
-        variants[precision] = (path, export_onnx(model, path, nfe=1,
-                                                 precision=precision).max_abs_diff)
+        variants[precision] = (path, export_onnx(model, path, nfe=1, precision=precision,
+                                                 control_rate_hz=RATE_HZ).max_abs_diff)
     print(
         f"[{preset}] exported {2 + len(precisions)} graphs in "
         f"{time.perf_counter() - start:.0f} s; parity max |ort - torch| = "

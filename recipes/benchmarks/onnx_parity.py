@@ -56,7 +56,8 @@ def main() -> None:
                     model = make(algorithm, manifold, obs)
                     for nfe in args.nfes:
                         try:
-                            r = export_onnx(model, Path(tmp) / "p.onnx", nfe=nfe)
+                            r = export_onnx(model, Path(tmp) / "p.onnx", nfe=nfe,
+                                            control_rate_hz=10.0)
                             row = (f"| {algorithm} | {manifold} | {obs} | {nfe} | "
                                    f"{r.max_abs_diff:.2e} | {r.max_sphere_error:.2e} | "
                                    f"{r.onnx_latency_ms:.2f} | {r.torch_latency_ms:.2f} |")

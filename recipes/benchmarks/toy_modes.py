@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
 
 from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold  # noqa: E402
 from rfmp_rl.modules import EMA, ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
+from rfmp_rl.objectives import LossConfig, make_loss  # noqa: E402
 
 #: name -> (algorithm, manifold, T_p, NFE)
 CASES = {
@@ -56,7 +56,7 @@ SETTINGS = {
 }
 
 #: SRFMP at NFE = 1 queries the field only at t = 0, so 30% of its training times are put there
-#: (ModelConfig.t0_fraction). At 0 it was 0.048 / 0.063 / 0.080 (seeds 0 / 1 / 2) on the pose
+#: (LossConfig.t0_fraction). At 0 it was 0.048 / 0.063 / 0.080 (seeds 0 / 1 / 2) on the pose
 #: chunk; with 0.3, 0.039 / 0.043 / 0.037 (same settings otherwise).
 T0_FRACTION = 0.3
 
@@ -107,14 +107,15 @@ def train(
         tau_hidden_dim=64,
         prior_sphere="wrapped",
         prior_scale=settings["prior_scale"],
-        time_sampling="tau" if algorithm == "srfmp" else "uniform",
-        t0_fraction=T0_FRACTION if algorithm == "srfmp" else 0.0,
     )
     cfg = dataclasses.replace(cfg, **overrides)
     model = build_model(cfg)
     model.action_normalizer.fit(modes)
     model.obs_normalizer.fit(torch.tensor([[-1.0], [1.0]]))
-    loss = make_loss(model)
+    srfmp = algorithm == "srfmp"
+    loss = make_loss(model, LossConfig(time_sampling="tau" if srfmp else "uniform",
+                                       t0_fraction=T0_FRACTION if srfmp else 0.0,
+                                       lambda_x=cfg.lambda_x))
     opt = torch.optim.AdamW(model.parameters(), lr=lr, weight_decay=1e-3, fused=True)
     sched = torch.optim.lr_scheduler.OneCycleLR(opt, max_lr=lr, total_steps=steps, pct_start=0.1)
     ema = EMA(model, decay=ema_decay)

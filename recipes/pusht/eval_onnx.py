@@ -27,6 +27,7 @@ import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from utils import (  # noqa: I001
+    CONTROL_RATE_HZ,
     check_config,
     deploy_classes,
     evaluate,
@@ -119,7 +120,8 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
         path = out / f"policy_nfe{nfe}_{precision}.onnx"
         try:
             report = export_onnx(model.cpu(), path, nfe, precision=precision,
-                                 calibration=calibration if precision == "int8" else None)
+                                 calibration=calibration if precision == "int8" else None,
+                                 control_rate_hz=CONTROL_RATE_HZ)
         except (RuntimeError, ValueError) as err:
             raise SystemExit(f"eval_onnx.py: {precision} export failed: {err}") from err
         print(report.summary())

@@ -19,11 +19,13 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 from utils import (  # noqa: I001
+    CONTROL_RATE_HZ,
     build_training,
     check_config,
     eval_model,
     exit_code,
     fit,
+    make_loss_config,
     make_model,
     make_replay_buffer,
     make_stores,
@@ -60,7 +62,8 @@ def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
                                        make_model, f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})")
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
                  camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
-                 rollout_score=selection_score(cfg))
+                 rollout_score=selection_score(cfg), loss=make_loss_config(cfg),
+                 control_rate_hz=CONTROL_RATE_HZ)
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
         best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
 

@@ -44,11 +44,13 @@ from rfmp_rl.envs.pusht import (  # noqa: E402
 from rfmp_rl.eval.metrics import jerk  # noqa: E402
 from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # noqa: E402
 from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
+from rfmp_rl.objectives import LossConfig  # noqa: E402
 
 __all__ = ["ROOT", "build_training", "resolve", "end_time", "fit", "load_for_eval", "start_run",
            "eval_model", "exit_code", "deploy_classes"]
 
 CONTROL_DT = 0.1  # Push-T runs at 10 Hz
+CONTROL_RATE_HZ = 1.0 / CONTROL_DT  # stored in checkpoints; the ONNX metadata's
 
 
 def check_config(cfg: DictConfig) -> None:
@@ -128,10 +130,17 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         prior_scale=cfg.prior_scale,
         prior_repeat=cfg.prior_repeat,
         lambda_x=cfg.lambda_x,
-        lambda_tau=cfg.lambda_tau,
+    )
+
+
+def make_loss_config(cfg: DictConfig) -> LossConfig:
+    """The loss's training-time options (`rfmp_rl.objectives.LossConfig`) from the flat keys."""
+    algorithm = ALGOS[cfg.algo]
+    return LossConfig(
         time_max=cfg.time_max if algorithm == "srfmp" else 1.0,
         t0_fraction=cfg.t0_fraction if algorithm != "ddim" else 0.0,
-        control_rate_hz=1.0 / CONTROL_DT,
+        lambda_x=cfg.lambda_x,
+        lambda_tau=cfg.lambda_tau,
     )
 
 

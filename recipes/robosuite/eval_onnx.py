@@ -28,6 +28,7 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig, OmegaConf
 from utils import (  # noqa: I001
+    CONTROL_RATE_HZ,
     check_config,
     deploy_classes,
     load_for_eval,
@@ -123,7 +124,8 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
         command = "python recipes/robosuite/eval_onnx.py " + " ".join(sys.argv[1:])
 
     try:
-        report = export_onnx(model, out / f"policy_nfe{nfe}.onnx", nfe, t_end=t_end)
+        report = export_onnx(model, out / f"policy_nfe{nfe}.onnx", nfe, t_end=t_end,
+                             control_rate_hz=CONTROL_RATE_HZ)
     except (RuntimeError, ValueError) as err:
         raise SystemExit(f"eval_onnx.py: export failed: {err}") from err
     print(report.summary())

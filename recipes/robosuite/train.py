@@ -20,12 +20,14 @@ from pathlib import Path
 import hydra
 from omegaconf import DictConfig
 from utils import (  # noqa: I001
+    CONTROL_RATE_HZ,
     build_training,
     check_config,
     ensure_demos,
     eval_model,
     exit_code,
     fit,
+    make_loss_config,
     make_model,
     make_replay_buffer,
     make_stores,
@@ -69,7 +71,8 @@ def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
     what = f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space})"
     model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer,
                                        make_model, what)
-    result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last)
+    result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last,
+                 loss=make_loss_config(cfg), control_rate_hz=CONTROL_RATE_HZ)
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
         best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
         rows = sweep(best_model, cfg, progress=show)

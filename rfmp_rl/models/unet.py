@@ -152,7 +152,8 @@ class ConditionalUnet1D(nn.Module):
         input_dim: Action dimension D per step (ambient coordinates, e.g. 3 for S^2).
         global_cond_dim: Size of the observation feature vector; 0 for an unconditional field.
         time_embed_dim: Size of the time embedding (sinusoid, then ``Linear(d, 4d) -> Mish ->
-            Linear(4d, d)`` as in Diffusion Policy).
+            Linear(4d, d)`` as in Diffusion Policy). None: ``down_dims[0]`` (256 for the paper
+            preset, as in Diffusion Policy; 64 for the small one), so it scales with the net.
         down_dims: Channel widths of the UNet levels, finest first.
         kernel_size: Odd temporal kernel size.
         n_groups: GroupNorm groups in every residual block.
@@ -161,7 +162,8 @@ class ConditionalUnet1D(nn.Module):
             integer diffusion steps (see :mod:`rfmp_rl.models.embeddings`).
         predict_tau: SRFMP mode: ``forward`` returns ``(v_x, v_tau)`` and ``t`` is the
             pseudo-time tau. Otherwise it returns ``v_x`` only.
-        tau_hidden_dim: Hidden width of the tau head (only with ``predict_tau``).
+        tau_hidden_dim: Hidden width of the tau head (only with ``predict_tau``). None:
+            ``2 * down_dims[0]`` (512 for the paper preset, 128 for the small one).
         tau_num_hidden_layers: Hidden layers of the tau head (only with ``predict_tau``).
 
     Example:
@@ -180,20 +182,23 @@ class ConditionalUnet1D(nn.Module):
         self,
         input_dim: int,
         global_cond_dim: int,
-        time_embed_dim: int = 256,
+        time_embed_dim: int | None = None,
         down_dims: Sequence[int] = UNET_PRESETS["paper"],
         kernel_size: int = 5,
         n_groups: int = 8,
         cond_predict_scale: bool = True,
         time_scale: float = DEFAULT_TIME_SCALE,
         predict_tau: bool = False,
-        tau_hidden_dim: int = 512,
+        tau_hidden_dim: int | None = None,
         tau_num_hidden_layers: int = 2,
     ) -> None:
         super().__init__()
         down_dims = tuple(int(d) for d in down_dims)
         if len(down_dims) < 1:
             raise ValueError("down_dims needs at least one level.")
+        time_embed_dim = down_dims[0] if time_embed_dim is None else int(time_embed_dim)
+        tau_hidden_dim = 2 * down_dims[0] if tau_hidden_dim is None else int(tau_hidden_dim)
+        self.time_embed_dim, self.tau_hidden_dim = time_embed_dim, tau_hidden_dim
         if kernel_size % 2 != 1:
             raise ValueError(f"kernel_size must be odd to keep lengths, got {kernel_size}.")
         self.input_dim = input_dim
@@ -316,13 +321,14 @@ def make_unet(
         **overrides: Any other :class:`ConditionalUnet1D` keyword (``predict_tau``, ...).
 
     Returns:
-        The network; kernel size 5, 8 groups, FiLM scale and bias, time embedding 256, as in
-        Diffusion Policy, unless overridden.
+        The network; kernel size 5, 8 groups, FiLM scale and bias as in Diffusion Policy, time
+        embedding ``down_dims[0]`` (Diffusion Policy's 256 for the paper preset), unless
+        overridden.
 
     Example:
         >>> net = make_unet("small", input_dim=2, global_cond_dim=40, predict_tau=True)
-        >>> net.down_dims
-        (64, 128, 256)
+        >>> net.down_dims, net.time_embed_dim, net.tau_hidden_dim
+        ((64, 128, 256), 64, 128)
     """
     if preset not in UNET_PRESETS:
         raise KeyError(f"Unknown UNet preset {preset!r}; choose from {sorted(UNET_PRESETS)}.")

@@ -22,14 +22,7 @@ from tensordict.utils import NestedKey
 from torch import nn
 
 from rfmp_rl import keys
-from rfmp_rl.flows import (
-    GeodesicPath,
-    HorizonPrior,
-    StablePath,
-    make_prior,
-    sample_time,
-    sample_time_via_tau,
-)
+from rfmp_rl.flows import HorizonPrior, make_prior
 from rfmp_rl.manifolds import Euclidean, Horizon, Manifold, Product, from_spec
 from rfmp_rl.models import (
     UNET_PRESETS,
@@ -41,7 +34,7 @@ from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
 from rfmp_rl.solvers import DEFAULT_SCHEDULES, integrate
 
 __all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model",
-           "unwrap_policy_model"]
+           "unwrap_policy_model", "MOVED_FIELDS"]
 
 ALGORITHMS = ("rfmp", "srfmp", "ddim")
 
@@ -51,7 +44,14 @@ PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
 
 @dataclass
 class ModelConfig:
-    """Everything needed to rebuild a policy network (stored in every checkpoint).
+    """A policy network's architecture and what inference needs (stored in every checkpoint).
+
+    The training-time options (how flow times are drawn, SRFMP's ``lambda_tau``) belong to the
+    loss (`rfmp_rl.objectives.LossConfig`); the rate actions are executed at is given at export
+    (``export_onnx(control_rate_hz=...)``). ``lambda_x`` stays here because inference needs it:
+    SRFMP's schedule takes its first step at ``1 / lambda_x`` and caps the later ones there.
+    ``time_embed_dim`` / ``tau_hidden_dim`` default to the first UNet width / twice it
+    (256 / 512 for the paper preset, 64 / 128 for the small one).
 
     Example:
         >>> cfg = ModelConfig(algorithm="srfmp", action_manifold="S2", obs_dim=3, horizon=4,
@@ -75,23 +75,18 @@ class ModelConfig:
     vision_out_dim: int = 512  # per-camera feature size
     unet_preset: str = "small"  # small | paper | paper_real
     down_dims: list[int] | None = None  # overrides the preset
-    time_embed_dim: int = 256
+    time_embed_dim: int | None = None  # None: down_dims[0] (256 for the paper preset)
     kernel_size: int = 5
-    tau_hidden_dim: int = 512  # SRFMP's tau-head MLP width
+    tau_hidden_dim: int | None = None  # SRFMP's tau-head MLP width; None: 2 * down_dims[0]
     prior_sphere: str = "uniform"  # uniform | wrapped (sphere components)
     prior_scale: float = 1.0  # tangent std of wrapped Gaussians
     prior_std: float = 1.0  # std of Euclidean Gaussians
     prior_repeat: bool = True  # one base action repeated over the chunk (paper) or one per step
-    lambda_x: float = 2.5
-    lambda_tau: float = 2.5
-    tau0: float = 0.0
-    tau1: float = 1.0
-    time_sampling: str = "uniform"  # uniform | tau (SRFMP only)
-    time_max: float = 1.0  # SRFMP: train on t in [0, time_max]; > 1 teaches the field to hold
-    t0_fraction: float = 0.0  # RFMP/SRFMP: share of training times set to t = 0 (see sample_times)
+    lambda_x: float = 2.5  # SRFMP: rate of the learned field; its schedule's first step 1/lambda_x
+    tau0: float = 0.0  # SRFMP: pseudo-time at the prior
+    tau1: float = 1.0  # SRFMP: pseudo-time at the data
     num_diffusion_steps: int = 100  # DDIM training steps
     clip_sample: bool = True  # DDIM clips the predicted clean sample to [-1, 1]
-    control_rate_hz: float = 10.0  # rate at which actions are executed (for deployment)
 
     def __post_init__(self) -> None:
         if self.action_steps is None:
@@ -114,36 +109,58 @@ class ModelConfig:
             )
         if self.obs_horizon < 2:
             raise ValueError(f"ModelConfig.obs_horizon (T_o) must be >= 2, got {self.obs_horizon}")
-        if self.time_sampling not in ("uniform", "tau"):
-            raise ValueError(
-                f"ModelConfig.time_sampling must be 'uniform' or 'tau', got {self.time_sampling!r}"
-            )
-        if self.time_max <= 0 or (self.algorithm == "rfmp" and self.time_max != 1.0):
-            raise ValueError(
-                f"ModelConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), "
-                f"got {self.time_max} for {self.algorithm}"
-            )
-        if not 0.0 <= self.t0_fraction < 1.0 or (self.algorithm == "ddim" and self.t0_fraction):
-            raise ValueError(
-                f"ModelConfig.t0_fraction must lie in [0, 1) and is for the flows (rfmp, srfmp), "
-                f"got {self.t0_fraction} for {self.algorithm}"
-            )
         if self.down_dims is None and self.unet_preset not in UNET_PRESETS:
             raise ValueError(
                 f"ModelConfig.unet_preset must be one of {sorted(UNET_PRESETS)}, "
                 f"got {self.unet_preset!r}"
             )
+        if not self.lambda_x > 0:
+            raise ValueError(f"ModelConfig.lambda_x must be > 0, got {self.lambda_x}")
+        first = int(self.unet_down_dims()[0])
+        if self.time_embed_dim is None:
+            self.time_embed_dim = first
+        if self.tau_hidden_dim is None:
+            self.tau_hidden_dim = 2 * first
+
+    def unet_down_dims(self) -> list[int]:
+        """The UNet's down-sampling widths: ``down_dims``, else the preset's."""
+        dims = self.down_dims if self.down_dims is not None else UNET_PRESETS[self.unet_preset]
+        return [int(d) for d in dims]
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> ModelConfig:
+        """From `to_dict`'s output. An unknown field raises, naming it; the training options
+        and the control rate that configs written before `LossConfig` held raise with how to
+        convert them (`rfmp_rl.checkpoint.read_checkpoint` does it for a checkpoint)."""
         known = set(cls.__dataclass_fields__)
+        moved = sorted(set(data) & set(MOVED_FIELDS))
+        if moved:
+            raise ValueError(
+                f"ModelConfig: fields {moved} no longer belong to the model config ("
+                + "; ".join(f"{k} -> {MOVED_FIELDS[k]}" for k in moved)
+                + "): load the checkpoint with rfmp_rl.checkpoint.read_checkpoint / "
+                "load_checkpoint, which convert it, or split the dict with "
+                "rfmp_rl.checkpoint.split_legacy_model_config"
+            )
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"ModelConfig: unknown fields {unknown}")
         return cls(**dict(data))
+
+
+#: Fields that configs written before `rfmp_rl.objectives.LossConfig` existed hold, and where
+#: each went: the training-time options to the loss config, the deployment rate to the
+#: checkpoint and the exporter.
+MOVED_FIELDS = {
+    "time_sampling": "LossConfig.time_sampling",
+    "time_max": "LossConfig.time_max",
+    "t0_fraction": "LossConfig.t0_fraction",
+    "lambda_tau": "LossConfig.lambda_tau",
+    "control_rate_hz": "save_checkpoint(control_rate_hz=...) / export_onnx(control_rate_hz=...)",
+}
 
 
 class PolicyModel(nn.Module):
@@ -178,12 +195,11 @@ class PolicyModel(nn.Module):
                 out_dim=cfg.vision_out_dim,
             )
         self.obs_encoder = ObservationEncoder(cfg.obs_dim, cfg.obs_horizon, vision)
-        down_dims = cfg.down_dims if cfg.down_dims is not None else UNET_PRESETS[cfg.unet_preset]
         self.network = ConditionalUnet1D(
             input_dim=self.action_dim,
             global_cond_dim=self.obs_encoder.out_dim,
             time_embed_dim=cfg.time_embed_dim,
-            down_dims=down_dims,
+            down_dims=cfg.unet_down_dims(),
             kernel_size=cfg.kernel_size,
             predict_tau=cfg.algorithm == "srfmp",
             tau_hidden_dim=cfg.tau_hidden_dim,
@@ -332,34 +348,13 @@ class FlowModel(PolicyModel):
         )
         self.prior = HorizonPrior(step_prior, cfg.horizon, repeat=cfg.prior_repeat)
         if self.stable:
-            self.path = StablePath(self.chunk, cfg.lambda_x, cfg.lambda_tau, cfg.tau0, cfg.tau1)
             self.state_manifold: Manifold = Product([self.chunk, Euclidean(1)])
         else:
-            self.path = GeodesicPath(self.chunk)
             self.state_manifold = self.chunk
 
     @property
     def noise_dim(self) -> int:
         return self.prior.noise_dim
-
-    def sample_times(self, batch: int, device=None, dtype=None) -> torch.Tensor:
-        """Training flow times ``(B, 1)``.
-
-        ``t ~ U[0, time_max]`` (or uniform in tau with ``time_sampling='tau'``); then a share
-        ``t0_fraction`` of them is set to exactly ``t = 0``. That is where every sample takes its
-        first step, and a one-step (NFE = 1) SRFMP sample its only one: there the field must map
-        a prior draw straight to its target (``x1 = Exp_x0(v / lambda_x)``), which uniform times
-        visit rarely.
-        """
-        t_max = self.cfg.time_max
-        if self.stable and self.cfg.time_sampling == "tau":
-            t = sample_time_via_tau(self.path, batch, t_max=t_max, device=device, dtype=dtype)
-        else:
-            t = t_max * sample_time(batch, device=device, dtype=dtype)
-        if self.cfg.t0_fraction > 0:
-            at_start = torch.rand(t.shape, device=t.device) < self.cfg.t0_fraction
-            t = t.masked_fill(at_start, 0.0)
-        return t
 
     def velocity(
         self, x: torch.Tensor, time: torch.Tensor, cond: torch.Tensor

@@ -13,6 +13,7 @@ from tensordict import TensorDictBase
 from tensordict.nn import TensorDictModule, TensorDictModuleBase
 from tensordict.utils import NestedKey
 from torch import nn
+from torchrl.data import Composite, TensorSpec
 from torchrl.envs.utils import ExplorationType, exploration_type
 
 from rfmp_rl import keys
@@ -101,8 +102,9 @@ class FlowPolicy(TensorDictModuleBase):
         schedule: ``"uniform"`` or ``"srfmp"`` (default: SRFMP's for SRFMP).
         refine_dt: SRFMP refinement step.
         observation_key, camera_keys, gap_key, action_key, noise_key: TensorDict keys.
-        spec: the action's TensorSpec (or a ``Composite`` holding ``action_key``), kept as
-            ``policy.spec`` as TorchRL's actors keep theirs.
+        spec: the action's TensorSpec (or a ``Composite`` holding ``action_key``, such as an
+            env's ``full_action_spec``): ``policy.spec`` is ``Composite({action_key: spec})``
+            as TorchRL's actors keep theirs (``policy.action_spec`` the leaf).
         safe: clamp every action to the demonstrated range (the action normaliser's min/max on
             the Euclidean coordinates; manifold parts are projected onto the manifold), then,
             with ``spec``, project it into the spec (``spec.project``).
@@ -137,9 +139,7 @@ class FlowPolicy(TensorDictModuleBase):
     ) -> None:
         super().__init__()
         self.model = model
-        if spec is not None and hasattr(spec, "keys") and action_key in spec.keys(True):
-            spec = spec[action_key]
-        self.spec, self.safe = spec, bool(safe)
+        self.safe = bool(safe)
         given = {k: v for k, v in {"nfe": nfe, "method": method, "t_end": t_end,
                                    "schedule": schedule, "refine_dt": refine_dt}.items()
                  if v is not None}
@@ -160,6 +160,39 @@ class FlowPolicy(TensorDictModuleBase):
         self._event_dims = ([2] if model.cfg.obs_dim > 0 else []) + [4] * len(model.cameras)
         self._event_dims += [0] if model.cfg.obs_horizon > 2 else []
         self.out_keys = [action_key]
+        self._spec = self._output_spec(spec)
+
+    def _output_spec(self, spec) -> Composite:
+        """``Composite({action_key: leaf spec or None})`` from a leaf spec, a ``Composite``
+        holding the action key (an env's ``full_action_spec``) or None, as TorchRL's actors
+        keep theirs."""
+        if spec is not None and not isinstance(spec, TensorSpec):
+            raise TypeError(f"FlowPolicy: spec must be a TorchRL TensorSpec, got "
+                            f"{type(spec).__name__}")
+        if isinstance(spec, Composite):
+            if self.action_key not in spec.keys(True, True):
+                raise KeyError(f"FlowPolicy: the spec holds no {self.action_key!r} entry (it "
+                               f"holds {sorted(map(str, spec.keys(True, True)))})")
+            spec = spec[self.action_key]
+        if spec is not None:
+            if not spec.shape or spec.shape[-1] != self.model.action_dim:
+                raise ValueError(f"FlowPolicy: the action spec's shape {tuple(spec.shape)} does "
+                                 f"not end in the action size {self.model.action_dim}")
+            spec = spec.clone()
+        out = Composite()
+        out[self.action_key] = spec
+        return out
+
+    @property
+    def spec(self) -> Composite:
+        """The output spec, keyed like ``out_keys``: ``spec[action_key]`` is the action spec
+        given at construction, or None."""
+        return self._spec
+
+    @property
+    def action_spec(self) -> TensorSpec | None:
+        """The action's spec (None when none was given)."""
+        return self._spec[self.action_key]
 
     def _clamp(self, action: torch.Tensor) -> torch.Tensor:
         """``(B, T_p, D)`` actions inside the demonstrated range, manifold parts on the manifold."""
@@ -224,7 +257,7 @@ class FlowPolicy(TensorDictModuleBase):
         if self.safe:
             action = self._clamp(action)
         action = action.reshape(*leading, *action.shape[-2:]).to(source)
-        if self.safe and self.spec is not None:
-            action = self.spec.project(action)
+        if self.safe and self.action_spec is not None:
+            action = self.action_spec.project(action)
         tensordict.set(self.action_key, action)
         return tensordict

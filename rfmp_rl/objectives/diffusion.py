@@ -16,25 +16,30 @@ class DiffusionPolicyLoss(ImitationLoss):
 
     The same UNet as RFMP/SRFMP, 100 training steps with the squaredcos_cap_v2 schedule, as in
     Diffusion Policy. Sphere coordinates are treated as Euclidean (the baseline ignores the
-    geometry; sampling projects at the end). Returns ``loss_diffusion``.
+    geometry; sampling projects at the end). Returns ``loss_diffusion``. Takes the actor (a
+    `FlowPolicy`, a wrapper of one, or the model); the `LossConfig`'s flow-time options do not
+    apply (``check('ddim')`` refuses them). See `ImitationLoss` for the keys, ``camera_keys``
+    and ``reduction``.
 
     Example:
         >>> from tensordict import TensorDict
-        >>> from rfmp_rl.modules import ModelConfig, build_model
+        >>> from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model
         >>> cfg = ModelConfig("ddim", "R2", obs_dim=3, horizon=4, down_dims=[32, 64])
         >>> model = build_model(cfg)
-        >>> DiffusionPolicyLoss(model)(TensorDict({"observation": torch.randn(8, 2, 3),
+        >>> DiffusionPolicyLoss(FlowPolicy(model, nfe=10))(TensorDict({"observation": torch.randn(8, 2, 3),
         ...     "action": torch.randn(8, 4, 2)}, [8]))["loss_diffusion"].shape
         torch.Size([])
     """
 
-    _out_keys = ("loss_diffusion",)
+    _loss_out_keys = ("loss_diffusion",)
 
-    def __init__(self, model: DiffusionModel, camera_keys=None, reduction: str = "mean") -> None:
-        model = unwrap_policy_model(model, "DiffusionPolicyLoss")  # a FlowPolicy or actor works too
+    def __init__(self, actor, loss_cfg=None, *, camera_keys=None, reduction: str = "mean"
+                 ) -> None:
+        model = unwrap_policy_model(actor, "DiffusionPolicyLoss")
         if not isinstance(model, DiffusionModel):
-            raise TypeError("DiffusionPolicyLoss needs a DiffusionModel (algorithm='ddim')")
-        super().__init__(model, camera_keys, reduction)
+            raise TypeError("DiffusionPolicyLoss needs a DiffusionModel (algorithm='ddim'), got "
+                            f"algorithm {model.cfg.algorithm!r}")
+        super().__init__(actor, loss_cfg, camera_keys=camera_keys, reduction=reduction)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDict:
         model = self.model
@@ -44,5 +49,5 @@ class DiffusionPolicyLoss(ImitationLoss):
         k = torch.randint(0, model.cfg.num_diffusion_steps, (batch,), device=x1.device)
         pred = model.predict_noise(model.add_noise(x1, eps, k), k, cond)
         per_step = ((pred - eps) ** 2).unflatten(-1, (model.horizon, model.action_dim)).mean(-1)
-        loss = self._reduce_loss(per_step, tensordict, mask=valid)
+        loss = self._reduce_steps(per_step, tensordict, valid)
         return TensorDict({"loss_diffusion": loss}, batch_size=[])

@@ -45,7 +45,7 @@ from tqdm import tqdm
 
 from rfmp_rl.checkpoint import read_checkpoint, save_checkpoint
 from rfmp_rl.modules.ema import EMA
-from rfmp_rl.objectives import make_loss
+from rfmp_rl.objectives import LossConfig, make_loss
 from rfmp_rl.solvers import SolverConfig
 from rfmp_rl.training.loggers import make_logger
 from rfmp_rl.training.resume import check_resumable
@@ -236,6 +236,11 @@ class Trainer:
         resume: a ``last.pt`` to continue (see `rfmp_rl.training.resume`).
         solver: the inference budget stored in the checkpoints (what the run selects and
             evaluates with; default: the algorithm's defaults at NFE 1).
+        loss: the training-time options of the loss (`rfmp_rl.objectives.LossConfig`; default:
+            its defaults with the model's ``lambda_x``), stored in the checkpoints; a resumed
+            run must keep them.
+        control_rate_hz: the rate the environment executes actions at, stored in the
+            checkpoints (the exporter writes it into the ONNX metadata).
 
     Example:
         >>> from tensordict import TensorDict
@@ -276,8 +281,11 @@ class Trainer:
         resume: str | Path | None = None,
         progress: bool = True,
         solver: SolverConfig | None = None,
+        loss: LossConfig | None = None,
+        control_rate_hz: float | None = None,
     ) -> None:
         self.runtime, self.recipe = runtime, recipe
+        self.control_rate_hz = control_rate_hz
         self.solver = (solver or SolverConfig()).resolve(model.cfg.algorithm)
         self.optim_cfg, self.train_cfg = optim or OptimConfig(), train or TrainConfig()
         self.logger_cfg = logger or LoggerConfig()
@@ -290,6 +298,12 @@ class Trainer:
         if resume is not None:  # checked before anything is built or written
             payload = read_checkpoint(resume)
             check_resumable(payload, resume, recipe, model.cfg.to_dict())
+            stored, now = payload.get("loss"), loss.to_dict() if loss is not None else None
+            if stored is not None and now is not None and stored != now:
+                details = ", ".join(f"{k}: run {stored.get(k)!r} vs now {now[k]!r}"
+                                    for k in sorted(now) if stored.get(k) != now[k])
+                raise ValueError(f"resume={resume}: the run trained with other loss settings "
+                                 f"({details}); resume with the run's settings")
             stored = payload["training_state"].get("select_by", self.train_cfg.select_by)
             if stored != self.train_cfg.select_by:
                 raise ValueError(f"resume={resume}: train.select_by={self.train_cfg.select_by} "
@@ -298,7 +312,8 @@ class Trainer:
             self.resume_state = payload
 
         self.model = model.set_precision(runtime.precision).to(runtime.device)
-        self.loss_fn = make_loss(self.model, camera_keys)
+        self.loss_fn = make_loss(self.model, loss, camera_keys)
+        self.loss_cfg = self.loss_fn.loss_cfg
         step_loss = _StepLoss(self.loss_fn)
         if runtime.distributed:  # wrapping copies rank 0's weights and buffers to every rank
             ids = [runtime.device.index] if runtime.device.type == "cuda" else None
@@ -306,7 +321,7 @@ class Trainer:
                                                 forward_sync_buffers=False)
         self.step_loss = step_loss
         self.ema = EMA(self.model, decay=self.optim_cfg.ema_decay)  # after: the same on all ranks
-        self.val_loss_fn = make_loss(self.ema.module, camera_keys)
+        self.val_loss_fn = make_loss(self.ema.module, self.loss_cfg, camera_keys)
         if runtime.compile:
             compile_networks(self.model)
             compile_networks(self.ema.module)
@@ -363,7 +378,8 @@ class Trainer:
         if self.runtime.is_main:
             save_checkpoint(self.run_dir / "last.pt", self.model, self.ema, self.config,
                             training_state=self.training_state(rng, logger), step=self.step,
-                            train_minutes=self.minutes, solver=self.solver)
+                            train_minutes=self.minutes, solver=self.solver, loss=self.loss_cfg,
+                            control_rate_hz=self.control_rate_hz)
 
     def _load_state(self, payload: dict) -> None:
         state = payload["training_state"]
@@ -439,7 +455,8 @@ class Trainer:
             self.best, self.best_step = criterion, self.step
             save_checkpoint(self.run_dir / "best.pt", self.model, self.ema, self.config,
                             step=self.step, val_loss=val, train_minutes=self.minutes,
-                            solver=self.solver, **extra)
+                            solver=self.solver, loss=self.loss_cfg,
+                            control_rate_hz=self.control_rate_hz, **extra)
 
     def fit(self) -> FitResult:
         rt, cfg = self.runtime, self.train_cfg

@@ -67,4 +67,4 @@ def test_safe_policy_keeps_actions_in_the_demonstrated_range_and_its_spec(make_t
     torch.testing.assert_close(safe[..., 3:7].norm(dim=-1), torch.ones(2, 4))
     projected = FlowPolicy(model, nfe=1, safe=True, spec=spec)(td.clone())["action"]
     assert projected.abs().max() <= 0.005 + 1e-7
-    assert FlowPolicy(model, spec=spec).spec is spec
+    assert FlowPolicy(model, spec=spec).action_spec == spec
