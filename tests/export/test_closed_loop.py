@@ -30,7 +30,7 @@ def test_onnx_controller_matches_flowpolicy_with_multistep_wrapper(tmp_path, mak
     model.obs_normalizer.fit(demo)
     model.eval()
     nfe = 3 if algorithm == "srfmp" else 4
-    export_onnx(model, tmp_path / "p.onnx", nfe=nfe)
+    export_onnx(model, tmp_path / "p.onnx", nfe=nfe, control_rate_hz=10.0)
     start = torch.nn.functional.normalize(torch.tensor([[0.3, -0.2, 0.9]]), dim=-1)
     steps = 30
 

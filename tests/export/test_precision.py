@@ -62,7 +62,8 @@ def exports(tmp_path_factory):
     model.obs_normalizer.fit(torch.randn(32, model.cfg.obs_dim, generator=gen) * 4)
     model.eval()
     folder = tmp_path_factory.mktemp("precision")
-    reports = {p: export_onnx(model, folder / f"{p}.onnx", nfe=1, precision=p)
+    reports = {p: export_onnx(model, folder / f"{p}.onnx", nfe=1, precision=p,
+                              control_rate_hz=10.0)
                for p in ("fp32", "fp16", "int8", "int8-dynamic")}
     return model, reports
 
@@ -136,11 +137,11 @@ def test_int8_calibrates_on_given_windows_and_records_it(tmp_path, make_tiny_mod
 
     calibration = calibration_inputs(model, TensorDict(samples, [24]), batch_size=8)
     assert [tuple(t.shape) for t in calibration[0]] == [(8, 2, 3), (8, model.noise_dim)]
-    report = export_onnx(model, tmp_path / "q.onnx", nfe=1, precision="int8",
+    report = export_onnx(model, tmp_path / "q.onnx", nfe=1, precision="int8", control_rate_hz=10.0,
                          calibration=calibration)
     assert metadata(report.path)["calibration"] == "given inputs (24 windows)"
     with pytest.raises(ValueError, match="precision must be one of"):
-        export_onnx(model, tmp_path / "x.onnx", nfe=1, precision="int4")
+        export_onnx(model, tmp_path / "x.onnx", nfe=1, precision="int4", control_rate_hz=10.0)
     assert not (tmp_path / "x.onnx").exists()
     # No scratch files are left beside the model.
     assert sorted(p.name for p in tmp_path.iterdir()) == ["q.onnx"]
@@ -156,7 +157,8 @@ def test_image_policy_exports_in_fp16(tmp_path):
     model = build_model(cfg)
     model.action_normalizer.fit(model.chunk.unflatten(model.chunk.random_base(16)))
     model.obs_normalizer.fit(torch.randn(16, 2))
-    report = export_onnx(model.eval(), tmp_path / "img.onnx", nfe=1, precision="fp16")
+    report = export_onnx(model.eval(), tmp_path / "img.onnx", nfe=1, precision="fp16",
+                         control_rate_hz=10.0)
     assert report.max_abs_diff <= PARITY_LIMITS["fp16"]
     types = initializer_types(report.path)
     vision = [v for k, v in types.items() if k.startswith("model.obs_encoder.vision")]
@@ -167,7 +169,7 @@ def test_image_policy_exports_in_fp16(tmp_path):
 
 def test_cli_exports_int8_with_store_calibration(tmp_path, make_tiny_model):
     model = pose_policy(make_tiny_model)
-    ckpt = save_checkpoint(tmp_path / "ckpt.pt", model)
+    ckpt = save_checkpoint(tmp_path / "ckpt.pt", model, control_rate_hz=10.0)
     gen = torch.Generator().manual_seed(1)
     from tensordict import TensorDict
 

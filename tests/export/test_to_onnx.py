@@ -30,13 +30,14 @@ def fitted(model):
 
 def test_srfmp_pose_policy_exports_with_metadata_and_matches_pytorch(tmp_path, make_tiny_model):
     model = fitted(make_tiny_model("srfmp", "R3 x S3 x R1", horizon=8))
-    report = export_onnx(model, tmp_path / "p.onnx", nfe=1)
+    report = export_onnx(model, tmp_path / "p.onnx", nfe=1, control_rate_hz=20.0)
     assert report.max_abs_diff <= 1e-4 and report.max_sphere_error <= 1e-5
     proto = onnx.load(str(tmp_path / "p.onnx"))
     meta = {p.key: p.value for p in proto.metadata_props}
     assert meta["rfmp_rl.format"] == "rfmp_rl.onnx/1"
     assert (meta["algorithm"], meta["nfe"], meta["schedule"]) == ("srfmp", "1", "srfmp")
     assert (meta["horizon"], meta["action_steps"], meta["obs_horizon"]) == ("8", "4", "2")
+    assert meta["control_rate_hz"] == "20.0"
     assert json.loads(meta["action_manifold"])["type"] == "product"
     low, high = json.loads(meta["action_low"]), json.loads(meta["action_high"])
     assert low[3:7] == [-1.0] * 4 and high[3:7] == [1.0] * 4  # quaternion coordinates
@@ -73,13 +74,14 @@ def test_export_refuses_an_unfitted_policy(make_tiny_model):
 def test_parity_failure_is_reported(tmp_path, make_tiny_model):
     model = fitted(make_tiny_model("ddim", "S2"))
     with pytest.raises(RuntimeError, match="differs from PyTorch"):
-        export_onnx(model, tmp_path / "d.onnx", nfe=2, atol=-1.0)  # no difference passes < 0
+        export_onnx(model, tmp_path / "d.onnx", nfe=2, atol=-1.0,  # no difference passes < 0
+                    control_rate_hz=10.0)
     assert (tmp_path / "d.onnx").exists()  # written before the check, for inspection
 
 
 def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
     model = fitted(make_tiny_model("rfmp", "S2", horizon=4))
-    ckpt = save_checkpoint(tmp_path / "ckpt.pt", model)
+    ckpt = save_checkpoint(tmp_path / "ckpt.pt", model, control_rate_hz=10.0)
     out = tmp_path / "policy.onnx"
     result = subprocess.run(
         [
@@ -134,7 +136,7 @@ def test_image_policy_exports_with_a_dynamic_batch(tmp_path):
     model = build_model(cfg)
     model.action_normalizer.fit(model.chunk.unflatten(model.chunk.random_base(16)))
     model.obs_normalizer.fit(torch.randn(16, 2))
-    report = export_onnx(model.eval(), tmp_path / "img.onnx", nfe=1)
+    report = export_onnx(model.eval(), tmp_path / "img.onnx", nfe=1, control_rate_hz=10.0)
     assert report.max_abs_diff <= 1e-4
     proto = onnx.load(str(tmp_path / "img.onnx"))
     names = [i.name for i in proto.graph.input]
@@ -142,3 +144,52 @@ def test_image_policy_exports_with_a_dynamic_batch(tmp_path):
     assert proto.graph.input[1].type.tensor_type.elem_type == onnx.TensorProto.UINT8
     inputs = json.loads({p.key: p.value for p in proto.metadata_props}["inputs"])
     assert inputs[1]["image_size"] == [32, 32] and inputs[1]["crop"] == [28, 28]
+
+
+def test_the_control_rate_is_an_export_argument(tmp_path, make_tiny_model):
+    model = fitted(make_tiny_model("rfmp", "S2", horizon=4))
+    with pytest.raises(ValueError, match="control_rate_hz must be the rate"):
+        export_onnx(model, tmp_path / "none.onnx", nfe=1)
+    assert not (tmp_path / "none.onnx").exists()  # refused before anything is written
+    with pytest.raises(ValueError, match="control_rate_hz"):
+        onnx_metadata(InferenceGraph(model, nfe=1), control_rate_hz=0.0)
+    assert onnx_metadata(InferenceGraph(model, nfe=1), 12.5)["control_rate_hz"] == "12.5"
+
+
+def _cli(*args):
+    return subprocess.run([sys.executable, str(ROOT / "export" / "to_onnx.py"), *map(str, args)],
+                          capture_output=True, text=True, timeout=300)
+
+
+def test_cli_rate_defaults_to_the_checkpoint_and_asks_for_one_when_it_has_none(
+    tmp_path, make_tiny_model
+):
+    model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
+    with_rate = save_checkpoint(tmp_path / "a.pt", model, control_rate_hz=20.0)
+    result = _cli("--checkpoint", with_rate, "--out", tmp_path / "a.onnx")
+    assert result.returncode == 0, result.stderr
+    assert {p.key: p.value for p in onnx.load(str(tmp_path / "a.onnx")).metadata_props}[
+        "control_rate_hz"] == "20.0"
+    result = _cli("--checkpoint", with_rate, "--rate", "50", "--out", tmp_path / "b.onnx")
+    assert result.returncode == 0, result.stderr
+    assert {p.key: p.value for p in onnx.load(str(tmp_path / "b.onnx")).metadata_props}[
+        "control_rate_hz"] == "50.0"
+    without = save_checkpoint(tmp_path / "c.pt", model)
+    result = _cli("--checkpoint", without, "--out", tmp_path / "c.onnx")
+    assert result.returncode == 1 and "--rate" in result.stderr
+    assert "Traceback" not in result.stderr and not (tmp_path / "c.onnx").exists()
+
+
+def test_cli_exports_a_checkpoint_written_before_the_loss_config(tmp_path, make_tiny_model):
+    """An old checkpoint: training options and the rate inside its model config."""
+    model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
+    path = save_checkpoint(tmp_path / "new.pt", model)
+    payload = torch.load(path, weights_only=True)
+    payload["model_config"].update(time_sampling="uniform", time_max=2.0, t0_fraction=0.5,
+                                   lambda_tau=2.5, control_rate_hz=10.0)
+    del payload["loss"], payload["control_rate_hz"]
+    torch.save(payload, tmp_path / "old.pt")
+    result = _cli("--checkpoint", tmp_path / "old.pt", "--out", tmp_path / "old.onnx")
+    assert result.returncode == 0, result.stderr
+    meta = {p.key: p.value for p in onnx.load(str(tmp_path / "old.onnx")).metadata_props}
+    assert (meta["control_rate_hz"], meta["algorithm"]) == ("10.0", "srfmp")

@@ -136,50 +136,6 @@ def test_flow_policy_runs_inside_a_sync_data_collector(make_tiny_model):
         assert torch.isfinite(batch["next", "reward"]).all()
 
 
-@pytest.mark.parametrize("algorithm", ["rfmp", "srfmp"])
-def test_t0_fraction_puts_that_share_of_training_times_at_the_start(make_tiny_model, algorithm):
-    torch.manual_seed(0)
-    plain = make_tiny_model(algorithm).sample_times(20000)
-    model = make_tiny_model(algorithm, t0_fraction=0.3)
-    times = model.sample_times(20000)
-    assert float((plain == 0).float().mean()) < 1e-3
-    assert abs(float((times == 0).float().mean()) - 0.3) < 0.02
-    rest = times[times > 0]
-    assert float(rest.max()) <= 1.0 and abs(float(rest.mean()) - float(plain.mean())) < 0.02
-
-
-def test_srfmp_time_max_trains_the_field_past_t_one_where_its_refinement_steps_land(
-    make_tiny_model,
-):
-    # After the SRFMP schedule's first step (dt = 1/lambda) the integrated pseudo-time is at
-    # tau1 = 1, which t in [0, 1] never reaches (tau(1) = 1 - exp(-2.5) = 0.918); time_max = 2
-    # trains tau up to 0.993.
-    torch.manual_seed(0)
-    model = make_tiny_model("srfmp", time_max=2.0, t0_fraction=0.3)
-    times = model.sample_times(20000)
-    assert float(times.max()) <= 2.0 and abs(float((times > 1).float().mean()) - 0.35) < 0.02
-    tau = model.path.tau_at(times)
-    assert float(tau.max()) > 0.99 > float(model.path.tau_at(torch.ones(1)))
-    first = model.initial_state(None, 1)[..., -1:] + model.path.tau_field(torch.zeros(1)) / 2.5
-    assert torch.allclose(first, torch.ones(1))
-
-
-def test_time_max_is_refused_for_rfmp(make_tiny_model):
-    with pytest.raises(ValueError, match="time_max.*rfmp"):
-        make_tiny_model("rfmp", time_max=2.0)
-
-
-@pytest.mark.parametrize("bad", [{"t0_fraction": 1.0}, {"t0_fraction": -0.1}])
-def test_t0_fraction_outside_zero_one_is_refused(make_tiny_model, bad):
-    with pytest.raises(ValueError, match="t0_fraction"):
-        make_tiny_model("srfmp", **bad)
-
-
-def test_t0_fraction_is_refused_for_ddim(make_tiny_model):
-    with pytest.raises(ValueError, match="t0_fraction.*ddim"):
-        make_tiny_model("ddim", t0_fraction=0.2)
-
-
 @pytest.mark.parametrize("repeat", [True, False])
 def test_prior_repeat_sets_one_base_action_or_one_per_step(make_tiny_model, repeat):
     model = make_tiny_model("rfmp", horizon=4, prior_repeat=repeat)

@@ -65,7 +65,8 @@ def test_mask_excludes_exactly_the_padded_steps(make_tiny_model, algorithm):
     per_step = {}
 
     def capture(values, tensordict=None, *, mask=None, **kw):
-        per_step["values"], per_step["mask"] = values.detach(), mask
+        if mask is not None:  # the per-step term (loss_tau is per sample, unmasked)
+            per_step["values"], per_step["mask"] = values.detach(), mask
         return type(loss)._reduce_loss(loss, values, tensordict, mask=mask, **kw)
 
     loss._reduce_loss = capture
@@ -155,3 +156,102 @@ def test_losses_train_from_a_replay_buffer_with_a_slice_sampler(make_tiny_model,
         opt.step()
         history.append(float(value))
     assert sum(history[-10:]) < 0.7 * sum(history[:10])
+
+
+def fixed_batch(model, n=6, pad=None):
+    """A batch with fixed prior noise and flow times: the flows' losses are deterministic."""
+    gen = torch.Generator().manual_seed(3)
+    td = batch(model, n, generator=gen)
+    td["prior_noise"] = torch.randn(n, model.noise_dim, generator=gen)
+    td["flow_time"] = torch.rand(n, 1, generator=gen)
+    if pad is not None:
+        td["action_is_pad"] = pad
+    return td
+
+
+def run(loss, td):
+    torch.manual_seed(0)  # DDIM's noise and steps
+    return loss(td.clone())
+
+
+@pytest.mark.parametrize("algorithm", ["rfmp", "srfmp", "ddim"])
+def test_every_loss_term_honours_reduction(make_tiny_model, algorithm):
+    model = make_tiny_model(algorithm, "S2", horizon=4)
+    pad = torch.zeros(6, 4, dtype=torch.bool)
+    pad[2, 2:] = True  # sample 2 keeps its first two steps
+    pad[4, 1:] = True  # sample 4 keeps one
+    td = fixed_batch(model, pad=pad)
+    outs = {r: run(make_loss(model, reduction=r), td) for r in ("none", "sum", "mean")}
+    for key in LOSS_KEYS[algorithm]:
+        none, total, mean = (outs[r][key] for r in ("none", "sum", "mean"))
+        assert none.shape == (6,) and total.shape == () and mean.shape == ()
+        torch.testing.assert_close(total, none.sum())
+        if key == "loss_tau":  # one value per sample: mean is the plain mean
+            torch.testing.assert_close(mean, none.mean())
+    # the per-step term: "none" is each sample's mean over its valid steps, "mean" weighs
+    # every valid step of the batch once
+    main = next(k for k in LOSS_KEYS[algorithm] if k != "loss_tau")
+    steps = (~pad).sum(-1).float()
+    torch.testing.assert_close(outs["mean"][main], (outs["none"][main] * steps).sum() / steps.sum())
+    unpadded = fixed_batch(model)
+    none = run(make_loss(model, reduction="none"), unpadded)[main]
+    torch.testing.assert_close(run(make_loss(model), unpadded)[main], none.mean())
+    for key, value in outs["none"].items():  # diagnostics stay scalars
+        if not key.startswith("loss_"):
+            assert value.shape == ()
+
+
+@pytest.mark.parametrize("algorithm", ["rfmp", "srfmp", "ddim"])
+def test_select_out_keys_works_on_every_loss(make_tiny_model, algorithm):
+    model = make_tiny_model(algorithm, "S2", horizon=4)
+    loss = make_loss(model)
+    keys = sorted(LOSS_KEYS[algorithm])
+    assert set(keys) < set(loss.out_keys) or algorithm == "ddim"
+    loss.select_out_keys(*keys)
+    assert sorted(loss.out_keys) == keys
+    out = run(loss, fixed_batch(model))
+    assert sorted(out.keys()) == keys
+    loss.reset_out_keys()
+    assert set(run(loss, fixed_batch(model)).keys()) == set(loss.out_keys)
+    with pytest.raises(ValueError, match="non existent key"):
+        loss.select_out_keys("loss_nothing")
+
+
+def test_camera_keys_are_accepted_keys_renamed_with_set_keys():
+    from rfmp_rl.modules import ModelConfig, build_model
+    from rfmp_rl.objectives import camera_field
+
+    cfg = ModelConfig("rfmp", "S2", obs_dim=3, horizon=4, down_dims=[16, 32],
+                      cameras={"cam": [3, 16, 16], "wrist-rgb": [3, 16, 16]},
+                      vision_out_dim=8)
+    torch.manual_seed(0)
+    model = build_model(cfg)
+    loss = RFMPLoss(model)
+    assert camera_field("wrist-rgb") == "wrist_rgb"
+    assert (loss.tensor_keys.cam, loss.tensor_keys.wrist_rgb) == ("cam", "wrist-rgb")
+    assert loss.in_keys == ["action", "observation", "cam", "wrist-rgb"]
+    loss.set_keys(cam=("pixels", "cam"), wrist_rgb="wrist_window")
+    assert loss.camera_keys == {"cam": ("pixels", "cam"), "wrist-rgb": "wrist_window"}
+    assert loss.in_keys == ["action", "observation", ("pixels", "cam"), "wrist_window"]
+    n = 3
+    image = torch.randint(0, 256, (n, 2, 3, 16, 16), dtype=torch.uint8)
+    td = TensorDict({"observation": torch.randn(n, 2, 3), ("pixels", "cam"): image,
+                     "wrist_window": image, "action": batch(model, n)["action"]}, [n])
+    assert torch.isfinite(loss(td)["loss_rfmp"])
+    loss.set_keys(cam=None)  # back to the default
+    assert loss.tensor_keys.cam == "cam"
+    # the constructor argument does the same; unknown cameras are named
+    same = RFMPLoss(model, camera_keys={"cam": ("pixels", "cam"), "wrist-rgb": "wrist_window"})
+    assert same.camera_keys == {"cam": ("pixels", "cam"), "wrist-rgb": "wrist_window"}
+    with pytest.raises(ValueError, match=r"cameras \['front'\]"):
+        RFMPLoss(model, camera_keys={"front": "x"})
+    with pytest.raises(ValueError, match="not an accepted tensordict key"):
+        loss.set_keys(front="x")
+    # a loss without cameras keeps the plain accepted keys
+    assert "cam" not in RFMPLoss(make_loss_model()).tensor_keys.__dataclass_fields__
+
+
+def make_loss_model():
+    from rfmp_rl.modules import ModelConfig, build_model
+
+    return build_model(ModelConfig("rfmp", "S2", obs_dim=3, horizon=4, down_dims=[16, 32]))

@@ -52,7 +52,7 @@ def test_policy_graph_and_metadata_read_the_same_solver(make_tiny_model):
     legacy = FlowPolicy(model, nfe=3, t_end=1.2)
     graph = InferenceGraph(model, solver=solver)
     assert policy.solver == legacy.solver == graph.solver == solver.resolve("srfmp")
-    meta = onnx_metadata(graph)
+    meta = onnx_metadata(graph, control_rate_hz=10.0)
     assert (meta["nfe"], meta["t_end"], meta["schedule"], meta["method"]) == (
         "3", "1.2", "srfmp", "euler")
     obs = torch.randn(2, 2, 3)
@@ -86,7 +86,8 @@ def test_exporter_defaults_to_the_checkpoint_solver(tmp_path, make_tiny_model):
     onnx = pytest.importorskip("onnx")
     model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
     ckpt = save_checkpoint(tmp_path / "c.pt", model,
-                           solver=SolverConfig(nfe=2, t_end=1.4, method="midpoint"))
+                           solver=SolverConfig(nfe=2, t_end=1.4, method="midpoint"),
+                           control_rate_hz=10.0)
     result = subprocess.run([sys.executable, str(ROOT / "export" / "to_onnx.py"), "--checkpoint",
                              str(ckpt)], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr
