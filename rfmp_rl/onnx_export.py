@@ -129,15 +129,15 @@ def onnx_metadata(graph: InferenceGraph, control_rate_hz: float | None = None) -
     """The ``rfmp_rl.onnx/1`` metadata for an inference graph executed at ``control_rate_hz``
     (the environment's rate; a checkpoint carries it as ``payload["control_rate_hz"]``)."""
     model, cfg = graph.model, graph.model.cfg
-    if control_rate_hz is None or not float(control_rate_hz) > 0:
-        raise ValueError(
-            f"control_rate_hz must be the rate (Hz, > 0) the policy's actions are executed at, "
-            f"got {control_rate_hz!r} (export/to_onnx.py: --rate)"
-        )
     if not bool(model.action_normalizer.fitted):
         raise ValueError(
             "the action normaliser was never fitted (no action statistics): refusing to export a "
             "policy whose action limits are unknown"
+        )
+    if control_rate_hz is None or not float(control_rate_hz) > 0:
+        raise ValueError(
+            f"control_rate_hz must be the rate (Hz, > 0) the policy's actions are executed at, "
+            f"got {control_rate_hz!r} (export/to_onnx.py: --rate)"
         )
     # Euclidean coordinates: the demonstrated range; sphere coordinates: [-1, 1].
     norm = model.action_normalizer

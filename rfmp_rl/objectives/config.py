@@ -11,7 +11,7 @@ Example:
     >>> LossConfig(time_max=2.0).check("rfmp")
     Traceback (most recent call last):
     ...
-    ValueError: LossConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), got 2.0 for rfmp
+    ValueError: LossConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), ...
 """
 
 from __future__ import annotations
@@ -39,8 +39,9 @@ class LossConfig:
     ``check(algorithm)`` validates them for one algorithm (the losses call it).
 
     Example:
-        >>> LossConfig().to_dict()
-        {'time_sampling': 'uniform', 'time_max': 1.0, 't0_fraction': 0.0, 'lambda_x': 2.5, 'lambda_tau': 2.5}
+        >>> LossConfig().to_dict()  # doctest: +NORMALIZE_WHITESPACE
+        {'time_sampling': 'uniform', 'time_max': 1.0, 't0_fraction': 0.0,
+         'lambda_x': 2.5, 'lambda_tau': 2.5}
     """
 
     time_sampling: str = "uniform"  # uniform | tau (SRFMP only: tau uniform in pseudo-time)

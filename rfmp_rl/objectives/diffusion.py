@@ -26,7 +26,8 @@ class DiffusionPolicyLoss(ImitationLoss):
         >>> from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model
         >>> cfg = ModelConfig("ddim", "R2", obs_dim=3, horizon=4, down_dims=[32, 64])
         >>> model = build_model(cfg)
-        >>> DiffusionPolicyLoss(FlowPolicy(model, nfe=10))(TensorDict({"observation": torch.randn(8, 2, 3),
+        >>> loss = DiffusionPolicyLoss(FlowPolicy(model, nfe=10))
+        >>> loss(TensorDict({"observation": torch.randn(8, 2, 3),
         ...     "action": torch.randn(8, 4, 2)}, [8]))["loss_diffusion"].shape
         torch.Size([])
     """

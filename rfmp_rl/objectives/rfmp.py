@@ -13,10 +13,11 @@ __all__ = ["RFMPLoss"]
 class RFMPLoss(FlowLoss):
     """``E ||v_t(a_t | o) - u_t(a_t | a_1)||^2_{g_{a_t}}`` on the geodesic path.
 
-    For each sample: draw ``t ~ U[0, 1]`` (`LossConfig.t0_fraction` puts a share at 0) and ``a_0 ~ p_0`` (one base action repeated over the
-    horizon), build ``a_t`` and ``u_t`` on the geodesic from ``a_0`` to the demonstrated chunk
-    ``a_1``, and regress the network velocity (projected onto ``T_{a_t}``) in the Riemannian
-    metric, summed over action dimensions and averaged over non-padded steps.
+    For each sample: draw ``t ~ U[0, 1]`` (`LossConfig.t0_fraction` puts a share at 0) and
+    ``a_0 ~ p_0`` (one base action repeated over the horizon), build ``a_t`` and ``u_t`` on the
+    geodesic from ``a_0`` to the demonstrated chunk ``a_1``, and regress the network velocity
+    (projected onto ``T_{a_t}``) in the Riemannian metric, summed over action dimensions and
+    averaged over non-padded steps.
 
     Returns ``loss_rfmp`` plus detached diagnostics ``rfmp_time_mean`` and ``target_norm``.
     Takes the actor (a `FlowPolicy`, a wrapper of one, or the model) and a `LossConfig`; see

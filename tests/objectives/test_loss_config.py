@@ -97,7 +97,7 @@ def test_the_srfmp_path_uses_the_loss_rates_and_the_model_pseudo_times(make_tiny
     assert (loss.path.lambda_x, loss.path.lambda_tau) == (3.0, 1.5)
     assert (loss.path.tau0, loss.path.tau1) == (0.1, 0.9)
     assert make_loss(model).loss_cfg.lambda_x == 3.0  # the default follows the model
-    with pytest.raises(ValueError, match=r"LossConfig.lambda_x=2.5 differs .*ModelConfig.lambda_x=3.0"):
+    with pytest.raises(ValueError, match=r"lambda_x=2.5 differs .*ModelConfig.lambda_x=3.0"):
         make_loss(model, LossConfig(lambda_x=2.5))
 
 

@@ -305,3 +305,26 @@ def test_cuda_training_in_every_precision(tmp_path, precision):
     assert float((action.norm(dim=-1) - 1).abs().max()) <= 1e-6
     restored, _ = load_checkpoint(tmp_path / "best.pt")
     assert next(restored.parameters()).device.type == "cpu"
+
+
+def test_checkpoints_carry_the_loss_settings_and_the_rate_and_resume_keeps_them(tmp_path):
+    from rfmp_rl.objectives import LossConfig
+
+    loss = LossConfig(time_max=2.0, t0_fraction=0.25)
+    model, rb, val = _fresh()
+    trainer = Trainer(model, rb, val, runtime=CPU, run_dir=tmp_path / "run", recipe="toy",
+                      train=TrainConfig(steps=2, val_every=1, val_batches=1), progress=False,
+                      logger=LoggerConfig("none"), loss=loss, control_rate_hz=20.0)
+    assert trainer.loss_fn.loss_cfg == loss == trainer.val_loss_fn.loss_cfg
+    trainer.fit()
+    for name in ("best.pt", "last.pt"):
+        payload = read_checkpoint(tmp_path / "run" / name)
+        assert payload["loss"] == loss.to_dict() and payload["control_rate_hz"] == 20.0
+    with pytest.raises(ValueError, match=r"other loss settings \(time_max: run 2.0 vs now 1.0"):
+        Trainer(tiny_model(), rb, val, runtime=CPU, run_dir=tmp_path / "run", recipe="toy",
+                train=TrainConfig(steps=4, val_batches=1), resume=tmp_path / "run" / "last.pt",
+                loss=LossConfig(t0_fraction=0.25))
+    resumed = Trainer(tiny_model(), rb, val, runtime=CPU, run_dir=tmp_path / "run",
+                      recipe="toy", train=TrainConfig(steps=4, val_batches=1),
+                      resume=tmp_path / "run" / "last.pt", loss=loss)
+    assert resumed.step == 2
