@@ -148,7 +148,7 @@ def split_legacy_model_config(
     rate = moved.pop("control_rate_hz", None)
     loss = None
     if moved:
-        loss = {k: v for k, v in moved.items()}
+        loss = dict(moved)
         loss["lambda_x"] = model.get("lambda_x", LossConfig.lambda_x)
         loss = LossConfig.from_dict(loss).to_dict()
     return model, loss, (float(rate) if rate is not None else None)
