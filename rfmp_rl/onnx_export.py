@@ -96,6 +96,11 @@ class InferenceGraph(nn.Module):
         >>> graph = InferenceGraph(model, nfe=1)
         >>> graph(torch.randn(2, 2, 3), torch.zeros(2, model.noise_dim)).shape
         torch.Size([2, 4, 3])
+        >>> longer = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4, obs_horizon=4,
+        ...                                  down_dims=[16, 32])).eval()
+        >>> graph = InferenceGraph(longer, nfe=1)  # T_o = 4: same inputs, gap 4 inside
+        >>> graph.input_names, graph.obs_gap
+        (['observation', 'prior_noise'], 4.0)
     """
 
     def __init__(
@@ -266,7 +271,9 @@ def calibration_inputs(
     Args:
         samples: a TensorDict of training samples as the store's replay buffer returns them:
             the observation window under ``observation`` ``(B, 2, D_obs)`` (raw units) and each
-            camera's window under its name ``(B, 2, C, H, W)``.
+            camera's window under its name ``(B, 2, C, H, W)``. With T_o > 2 their contexts
+            lie 2 to T_o steps back (the training gaps) while the graph's is T_o steps back:
+            the same observation ranges, which is what calibration measures.
         batch_size: windows per calibration run.
         seed: seed of the standard-normal prior noise drawn for each window.
     """
