@@ -7,8 +7,16 @@ chunk ``(B, T_p, D)``. The prior noise is a graph input (``prior_noise``, standa
 prior, zero noise maps to the prior's mode (Gaussian mean, wrapped-Gaussian base point, the
 sphere's origin for the uniform prior, DDIM's zero start).
 
-Metadata (``metadata_props``, contract ``rfmp_rl.onnx/1``) describes inputs, horizons, the
-action manifold and limits; `deploy/` reads only that.
+The observation inputs are the window ``[o^c, o^{s-1}]`` ``(B, 2, ...)``, context first, for
+every T_o (``obs_horizon``). Training draws the context ``c`` from ``[s - T_o, s - 2]`` and, when
+T_o > 2, conditions on the gap ``s - c``; at inference the context is always the oldest of the
+last T_o observations (``c = s - T_o``; at an episode's start the first observation repeated, as
+the training sampler pads), so the gap is the constant T_o and the graph builds it itself: a
+controller keeps the last ``obs_horizon`` observations and feeds ``[oldest, latest]``, with the
+same inputs as for T_o = 2.
+
+Metadata (``metadata_props``, contract ``rfmp_rl.onnx/1``) describes inputs, horizons (including
+``obs_horizon``), the action manifold and limits; `deploy/` reads only that.
 
 Reduced precision (``precision=``) changes the networks (observation encoder, UNet) only; the
 normalisers, the manifold maps and the solver steps stay float32, and so do the graph's inputs
@@ -46,7 +54,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from rfmp_rl import __version__
+from rfmp_rl import __version__, keys
 from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices
 from rfmp_rl.modules.policy_model import DiffusionModel, FlowModel, unwrap_policy_model
 from rfmp_rl.solvers import SolverConfig
@@ -76,6 +84,11 @@ _FLOAT_SCOPES = ("model.network.down.0.0", "model.network.final", "model.network
 class InferenceGraph(nn.Module):
     """``(observation?, *camera images, prior_noise) -> action`` with a fixed solver budget.
 
+    The observation inputs are the window ``[o^c, o^{s-1}]`` ``(B, 2, ...)``. For T_o > 2 the
+    policy's gap input is the constant ``obs_gap`` = T_o (the inference rule: the context is the
+    oldest of the last T_o observations), built inside the graph, so the inputs are the same for
+    every T_o.
+
     Example:
         >>> from rfmp_rl.modules import ModelConfig, build_model
         >>> model = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4,
@@ -83,6 +96,11 @@ class InferenceGraph(nn.Module):
         >>> graph = InferenceGraph(model, nfe=1)
         >>> graph(torch.randn(2, 2, 3), torch.zeros(2, model.noise_dim)).shape
         torch.Size([2, 4, 3])
+        >>> longer = build_model(ModelConfig("srfmp", "S2", obs_dim=3, horizon=4, obs_horizon=4,
+        ...                                  down_dims=[16, 32])).eval()
+        >>> graph = InferenceGraph(longer, nfe=1)  # T_o = 4: same inputs, gap 4 inside
+        >>> graph.input_names, graph.obs_gap
+        (['observation', 'prior_noise'], 4.0)
     """
 
     def __init__(
@@ -100,18 +118,22 @@ class InferenceGraph(nn.Module):
         model = unwrap_policy_model(model, "InferenceGraph")
         self.model = model
         self.solver = _solver(model, solver, nfe, method, t_end, schedule, refine_dt)
-        if model.cfg.obs_horizon > 2:
-            raise ValueError(
-                f"ONNX export ({ONNX_FORMAT}) takes the window [o^(s-2), o^(s-1)]: the policy's "
-                f"T_o = {model.cfg.obs_horizon} needs a gap input the format does not have"
-            )
         self.has_obs = model.cfg.obs_dim > 0
         self.cameras = tuple(model.cameras)
-        # the conditioning inputs as the model orders them (`condition_keys`), then the noise
-        self.input_names = [*map(str, model.condition_keys()), "prior_noise"]
+        # s - c at inference: the context is the oldest of the last T_o observations
+        self.obs_gap = float(model.cfg.obs_horizon) if model.cfg.obs_horizon > 2 else None
+        # the conditioning inputs as the model orders them (`condition_keys`) without the gap,
+        # which the graph builds, then the noise
+        names = model.condition_keys(gap_key=keys.OBS_GAP)
+        if self.obs_gap is not None:
+            names = names[:-1]  # the gap comes last
+        self.input_names = [*map(str, names), "prior_noise"]
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         *conditioning, noise = inputs
+        if self.obs_gap is not None:
+            gap = noise.new_full((noise.shape[0],), self.obs_gap)  # (B,), follows the batch
+            conditioning.append(gap)
         cond = self.model.encode_inputs(*conditioning)
         return self.model.sample(cond, noise, **self.solver.sample_kwargs())
 
@@ -255,12 +277,12 @@ def calibration_inputs(
     Args:
         samples: a TensorDict of training samples as the store's replay buffer returns them:
             the observation window under ``observation`` ``(B, 2, D_obs)`` (raw units) and each
-            camera's window under its name ``(B, 2, C, H, W)``.
+            camera's window under its name ``(B, 2, C, H, W)``. With T_o > 2 their contexts
+            lie 2 to T_o steps back (the training gaps) while the graph's is T_o steps back:
+            the same observation ranges, which is what calibration measures.
         batch_size: windows per calibration run.
         seed: seed of the standard-normal prior noise drawn for each window.
     """
-    from rfmp_rl import keys
-
     generator = torch.Generator().manual_seed(seed)
     columns = []
     if model.cfg.obs_dim > 0:

@@ -14,6 +14,17 @@ chunk ``k``; each column is one ``step`` call, one control period)::
       action   hold   c_0[1] ... c_0[7] c_0[8] c_1[2] ...   (c_1 arrived 2 steps after r_1,
                                                              so its first 2 actions are stale)
 
+Observation window (T_o = ``obs_horizon`` from the metadata; ``o_k`` is the observation given
+to step ``k``; the graph takes ``[context, latest]`` and, for T_o > 2, holds the gap T_o)::
+
+    T_o = 4     step 0      step 1      step 2      step 3      step 4      step 5
+    kept        o_0         o_0 o_1     o_0 .. o_2  o_0 .. o_3  o_1 .. o_4  o_2 .. o_5
+    window      [o_0, o_0]  [o_0, o_1]  [o_0, o_2]  [o_0, o_3]  [o_1, o_4]  [o_2, o_5]
+
+The context is the oldest of the last T_o observations; until T_o have been seen since `reset`
+(or since a ``resync``) the first one stands in for the missing ones, as training pads at an
+episode's start. T_o = 2 gives ``[previous, latest]``.
+
 A chunk requested at step ``s`` is planned from the observation of step ``s``, so its action
 ``j`` belongs to step ``s + j``; when it arrives ``k`` steps late the controller starts at
 ``c[k]``. The queue runs dry (an ``underrun``: the robot holds) only when inference takes longer
@@ -34,7 +45,6 @@ from typing import Any
 
 import numpy as np
 
-from rfmp_deploy.metadata import WINDOW
 from rfmp_deploy.observation import Frame, ObservationError, ObservationProcessor, stack_window
 from rfmp_deploy.policy import Policy
 from rfmp_deploy.safety import Event, guard_action, resolve_safe_action
@@ -84,10 +94,12 @@ class Controller:
 
     Each `step` takes the robot's latest observation dict (low-dim fields from the model's
     ``observation_keys``, camera name -> ``H x W x 3`` uint8 RGB frame of any size) and returns
-    one ``(D,)`` float32 action to send. Internally it keeps the previous and the latest
-    observation — the policy's window ``[o^c, o^{s-1}]``, context first; right after
-    construction or `reset` the latest is repeated — predicts chunks of ``T_p`` actions and
-    executes ``T_a`` of each (see the module's timing picture).
+    one ``(D,)`` float32 action to send. Internally it keeps the last T_o (``obs_horizon``)
+    observations, vectors and camera frames copied into its own buffers, and feeds the policy
+    the window ``[o^c, o^{s-1}]``: the oldest kept observation (the context) and the latest;
+    right after construction, `reset` or a ``resync`` the first observation stands in for the
+    ones not seen yet. It predicts chunks of ``T_p`` actions and executes ``T_a`` of each (see
+    the module's pictures).
 
     Safety: `step` never raises on bad input. An observation with a missing key or camera, the
     wrong shape or dtype, or NaN/inf is rejected — the controller records a ``"rejected"``
@@ -173,7 +185,8 @@ class Controller:
         self.step_count = 0
         self.plan_count = 0
         self._rng = np.random.default_rng(seed)
-        self._history: deque[Frame] = deque(maxlen=WINDOW)  # [previous, latest]
+        # the last T_o frames, oldest first: the window is [oldest, latest]
+        self._history: deque[Frame] = deque(maxlen=meta.obs_horizon)
         self._queue: deque[np.ndarray] = deque()
         self._executed = 0  # actions executed from the current chunk (synchronous mode)
         self._last_action: np.ndarray | None = None
@@ -285,10 +298,11 @@ class Controller:
         logger.log(level, "step %d: %s: %s", event.step, kind, message)
 
     def _resync(self) -> None:
-        """After an outage (steps whose observations were rejected, so the robot held), the
-        window's earlier frame is not the previous step's: refill the window from fresh
-        observations (the next plan pairs the new frame with itself, as after `reset`) and drop
-        the plan. (A late step after an overrun is still the next step: no resync.)"""
+        """After an outage (steps whose observations were rejected, so the robot held), the kept
+        frames are no longer the last T_o steps': refill them from fresh observations and drop
+        the plan. As after `reset`, the first fresh frame stands in for the steps not seen yet
+        (the next plan pairs it with itself; for T_o > 2 it stays the context until T_o fresh
+        frames were kept). (A late step after an overrun is still the next step: no resync.)"""
         if self._last_frame is None:
             return
         step, when = self._last_frame
@@ -310,8 +324,8 @@ class Controller:
             self._pending = None
 
     def _inputs(self) -> tuple[np.ndarray | None, dict[str, np.ndarray], np.ndarray]:
-        frames = list(self._history)
-        frames = [frames[0]] * (WINDOW - len(frames)) + frames  # first step: [latest, latest]
+        # [o^(s-T_o), o^(s-1)]; with fewer than T_o frames kept the first one is the context
+        frames = [self._history[0], self._history[-1]]
         observation, images = stack_window(frames, self.meta)
         if self.deterministic:
             noise = np.zeros((1, self.meta.noise_dim), dtype=np.float32)

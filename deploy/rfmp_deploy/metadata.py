@@ -26,7 +26,12 @@ __all__ = [
 ]
 
 FORMAT = "rfmp_rl.onnx/1"
-WINDOW = 2  # observations per window: [o^c, o^{s-1}], context = previous step, then the latest
+#: Observations per graph input window: ``[o^c, o^{s-1}]``, the context then the latest. The
+#: controller keeps the last ``obs_horizon`` (T_o) observations and feeds the oldest as the
+#: context (``c = s - T_o``; the graph holds the matching gap ``s - c = T_o`` when T_o > 2).
+WINDOW = 2
+#: T_o of models whose metadata has no ``obs_horizon`` (the window [previous, latest]).
+DEFAULT_OBS_HORIZON = 2
 
 REQUIRED_KEYS = (
     "rfmp_rl.format",
@@ -36,7 +41,6 @@ REQUIRED_KEYS = (
     "method",
     "t_end",
     "schedule",
-    "obs_horizon",
     "horizon",
     "action_steps",
     "control_rate_hz",
@@ -48,15 +52,17 @@ REQUIRED_KEYS = (
     "noise",
 )
 
-#: Optional keys: the network's precision in the graph (default fp32) and how far the exported
-#: graph was measured from the float32 PyTorch policy (normalised action units).
+#: Optional keys: T_o (default `DEFAULT_OBS_HORIZON`), the network's precision in the graph
+#: (default fp32) and how far the exported graph was measured from the float32 PyTorch policy
+#: (normalised action units).
 PRECISIONS = ("fp32", "fp16", "int8", "int8-dynamic")
-OPTIONAL_KEYS = ("precision", "parity_max_abs_diff")
+OPTIONAL_KEYS = ("obs_horizon", "precision", "parity_max_abs_diff")
 
 _DTYPES = {"float32": np.dtype(np.float32), "uint8": np.dtype(np.uint8)}
 #: Plausibility bounds: metadata outside them is refused at load (a typo, not a robot).
 RATE_RANGE_HZ = (0.1, 2000.0)
 MAX_HORIZON = 1024
+MAX_OBS_HORIZON = 1024  # observations the controller keeps (camera frames included)
 
 _KIND_DTYPE = {"lowdim": "float32", "image": "uint8", "noise": "float32"}
 
@@ -121,7 +127,9 @@ class PolicyMeta:
         method: ODE solver (``euler``, ``midpoint``, ...).
         t_end: integration end time.
         schedule: solver step schedule.
-        obs_horizon: T_o; always 2 in this format: the window is [previous, latest].
+        obs_horizon: T_o, the observations the controller keeps; the graph's window is the
+            oldest and the latest of them, ``[o^(s-T_o), o^(s-1)]`` (``[previous, latest]`` for
+            T_o = 2). Models whose metadata has no ``obs_horizon`` have T_o = 2.
         horizon: T_p, actions per predicted chunk.
         action_steps: T_a, actions executed per chunk.
         control_rate_hz: the rate the policy was trained at.
@@ -346,11 +354,12 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
             f"{path}: metadata key 'rfmp_rl.format' is {fmt!r}; this controller reads {FORMAT!r} "
             f"only (re-export the policy with a matching rfmp_rl, or use a matching rfmp_deploy)"
         )
-    obs_horizon = r.integer("obs_horizon", 1)
-    if obs_horizon != WINDOW:
-        raise r.error("obs_horizon", f"is {obs_horizon}; {FORMAT} policies see the window "
-                                     f"[previous, latest] (T_o = {WINDOW}); a context drawn from "
-                                     f"further back needs a gap input this format does not have")
+    obs_horizon = DEFAULT_OBS_HORIZON
+    if "obs_horizon" in props:
+        obs_horizon = r.integer("obs_horizon", WINDOW)
+        if obs_horizon > MAX_OBS_HORIZON:
+            raise r.error("obs_horizon", f"T_o={obs_horizon} is implausible (at most "
+                                         f"{MAX_OBS_HORIZON} observations kept)")
     horizon = r.integer("horizon", 1)
     action_steps = r.integer("action_steps", 1)
     if action_steps > horizon:
@@ -379,7 +388,7 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
     for s in inputs:
         if s.kind in ("lowdim", "image") and s.shape[0] != WINDOW:
             raise r.error("inputs", f"input '{s.name}' has a window of {s.shape[0]} "
-                                    f"observations, expected {WINDOW} ([previous, latest])")
+                                    f"observations, expected {WINDOW} ([context, latest])")
 
     raw_keys = r.json("observation_keys")
     if not isinstance(raw_keys, list):

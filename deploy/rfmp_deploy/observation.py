@@ -190,17 +190,18 @@ class ObservationProcessor:
 def stack_window(
     frames: Sequence[Frame], meta: PolicyMeta
 ) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
-    """The graph's observation inputs from ``T_o`` frames ordered in time (oldest first).
+    """The graph's observation inputs from the window's frames ordered in time (oldest first:
+    ``[context, latest]``).
 
     Returns:
-        ``(observation, images)``: ``(1, T_o, D_obs)`` float32 or ``None``, and camera name ->
-        ``(1, T_o, C, H, W)`` uint8.
+        ``(observation, images)``: ``(1, len(frames), D_obs)`` float32 or ``None``, and camera
+        name -> ``(1, len(frames), C, H, W)`` uint8.
     """
     observation = None
     if meta.lowdim_input is not None:
-        observation = np.stack([f.lowdim for f in frames])[None]  # (1, T_o, D_obs)
+        observation = np.stack([f.lowdim for f in frames])[None]  # (1, 2, D_obs)
     images = {
-        name: np.stack([f.images[name] for f in frames])[None]  # (1, T_o, C, H, W)
+        name: np.stack([f.images[name] for f in frames])[None]  # (1, 2, C, H, W)
         for name in meta.cameras
     }
     return observation, images

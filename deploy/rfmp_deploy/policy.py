@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 import onnxruntime as ort
 
-from rfmp_deploy.metadata import FORMAT, InputSpec, PolicyMeta, parse_metadata
+from rfmp_deploy.metadata import FORMAT, WINDOW, InputSpec, PolicyMeta, parse_metadata
 
 __all__ = ["Policy"]
 
@@ -151,9 +151,10 @@ class Policy:
         """Run one batch.
 
         Args:
-            observation: ``(B, T_o, D_obs)`` float32, the window ``[context, latest]``; ``None``
+            observation: ``(B, 2, D_obs)`` float32, the window ``[context, latest]`` (the
+                context is the oldest of the last ``meta.obs_horizon`` observations); ``None``
                 when the model has no low-dimensional input.
-            images: camera name -> ``(B, T_o, C, H, W)`` uint8 RGB (previous frame first), at
+            images: camera name -> ``(B, 2, C, H, W)`` uint8 RGB (context frame first), at
                 the model's ``image_size``.
             noise: ``(B, noise_dim)`` float32 standard normal draws; zeros give the
                 deterministic mode.
@@ -177,7 +178,7 @@ class Policy:
         else:
             if observation is None:
                 raise ValueError(f"input '{lowdim.name}' is required: "
-                                 f"(B, {meta.obs_horizon}, {meta.obs_dim}) float32")
+                                 f"(B, {WINDOW}, {meta.obs_dim}) float32")
             feeds[lowdim.name] = self._check(lowdim, observation, batch)
         unknown = sorted(set(images) - set(meta.cameras))
         if unknown:

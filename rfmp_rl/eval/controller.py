@@ -3,7 +3,9 @@
 The controller is any object with the ``rfmp_deploy.Controller`` interface (``reset()``,
 ``step(observation) -> action``, ``events``): this module does not import the torch-free deploy
 package, so the same loop runs the controller a robot PC runs. The env is stepped with the
-controller's actions exactly as a robot would be: per-step observations in, one action out.
+controller's actions exactly as a robot would be: per-step observations in, one action out. The
+controller keeps its own observation window (the last ``obs_horizon`` steps, T_o), so ``observe``
+returns one step's observation for any T_o, never a window.
 
 Example:
     >>> import numpy as np, torch

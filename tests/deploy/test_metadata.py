@@ -52,6 +52,22 @@ def test_missing_key(key):
         parse_metadata(props, "p.onnx")
 
 
+@pytest.mark.parametrize("obs_horizon", [2, 4, 16])
+def test_obs_horizon_is_kept_and_the_windows_stay_two_rows(obs_horizon):
+    meta = parse_metadata(toy_metadata(ToySpec(obs_horizon=obs_horizon,
+                                               cameras={"front": (3, 24, 32)})))
+    assert meta.obs_horizon == obs_horizon
+    assert meta.lowdim_input.shape == (2, 7) and meta.image_inputs[0].shape == (2, 3, 24, 32)
+    assert f"T_o={obs_horizon}, T_p=4" in meta.summary()
+
+
+def test_models_without_obs_horizon_load_as_two():
+    props = toy_metadata(ToySpec())
+    del props["obs_horizon"]
+    meta = parse_metadata(props, "p.onnx")
+    assert meta.obs_horizon == 2 and "obs_horizon" not in meta.extra
+
+
 @pytest.mark.parametrize("key", JSON_KEYS)
 def test_bad_json(key):
     props = toy_metadata(ToySpec()) | {key: "[{not json"}
@@ -91,8 +107,10 @@ BAD = {
     "inputs dtype": ("inputs", _inputs(ToySpec(), lambda e: e[0].update(dtype="float64")),
                      "must be float32"),
     "inputs window": ("inputs", _inputs(ToySpec(), lambda e: e[0].update(shape=[3, 7])),
-                      r"window of 3 observations, expected 2 \(\[previous, latest\]\)"),
-    "obs_horizon 3": ("obs_horizon", "3", "gap input"),
+                      r"window of 3 observations, expected 2 \(\[context, latest\]\)"),
+    "obs_horizon 1": ("obs_horizon", "1", "must be >= 2, got 1"),
+    "obs_horizon text": ("obs_horizon", "four", "expected an integer, got 'four'"),
+    "obs_horizon huge": ("obs_horizon", "100000", "T_o=100000 is implausible"),
     "inputs no noise": ("inputs", _inputs(ToySpec(), lambda e: e.pop()), "exactly one 'noise'"),
     "image size": ("inputs", _inputs(CAM, lambda e: e[1].update(image_size=[24, 30])),
                    "differs from the shape"),

@@ -2,7 +2,7 @@
 
 The graph is linear, so tests know every answer::
 
-    features = [observation window flattened (T_o * D_obs), mean pixel / 255 per camera, noise]
+    features = [observation window flattened (2 * D_obs), mean pixel / 255 per camera, noise]
     action[b, t] = features[b] @ W + bias + offsets[t]        # (B, T_p, D)
 
 Sphere coordinates get a large bias (norm ~5), so the controller must renormalise them.
@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import onnx
 from onnx import TensorProto, helper, numpy_helper
+
+WINDOW = 2  # rows of every graph input window: [context, latest]
 
 R3_S3_R1 = {"type": "product", "components": [
     {"type": "euclidean", "dim": 3}, {"type": "sphere", "n": 3}, {"type": "euclidean", "dim": 1}
@@ -54,7 +56,7 @@ class ToySpec:
     high: list | None = None
     horizon: int = 4
     action_steps: int = 2
-    obs_horizon: int = 2
+    obs_horizon: int = 2  # T_o in the metadata; the graph's windows always hold 2 rows
     noise_dim: int = 8
     control_rate_hz: float = 10.0
     noise_default: str = "standard_normal"
@@ -74,7 +76,7 @@ class ToySpec:
 
     @property
     def n_features(self) -> int:
-        return self.obs_horizon * self.obs_dim + len(self.cameras) + self.noise_dim
+        return WINDOW * self.obs_dim + len(self.cameras) + self.noise_dim
 
     def params(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         rng = np.random.default_rng(self.seed)
@@ -96,10 +98,10 @@ class ToySpec:
 def toy_metadata(spec: ToySpec) -> dict[str, str]:
     inputs = []
     if spec.obs_keys:
-        inputs.append({"name": "observation", "shape": [spec.obs_horizon, spec.obs_dim],
+        inputs.append({"name": "observation", "shape": [WINDOW, spec.obs_dim],
                        "dtype": "float32", "kind": "lowdim"})
     for name, (c, h, w) in spec.cameras.items():
-        inputs.append({"name": name, "shape": [spec.obs_horizon, c, h, w], "dtype": "uint8",
+        inputs.append({"name": name, "shape": [WINDOW, c, h, w], "dtype": "uint8",
                        "kind": "image", "image_size": [h, w], "crop": list(spec.crop or (h, w))})
     inputs.append({"name": "prior_noise", "shape": [spec.noise_dim], "dtype": "float32",
                    "kind": "noise"})
@@ -137,13 +139,13 @@ def build_graph(spec: ToySpec) -> onnx.ModelProto:
 
     if spec.obs_keys:
         inputs.append(helper.make_tensor_value_info(
-            "observation", TensorProto.FLOAT, [spec.batch, spec.obs_horizon, spec.obs_dim]))
-        shape = const("obs_flat_shape", np.array([-1, spec.obs_horizon * spec.obs_dim], np.int64))
+            "observation", TensorProto.FLOAT, [spec.batch, WINDOW, spec.obs_dim]))
+        shape = const("obs_flat_shape", np.array([-1, WINDOW * spec.obs_dim], np.int64))
         nodes.append(helper.make_node("Reshape", ["observation", shape], ["obs_flat"]))
         features.append("obs_flat")
     for name, (c, h, w) in spec.cameras.items():
         inputs.append(helper.make_tensor_value_info(
-            name, TensorProto.UINT8, [spec.batch, spec.obs_horizon, c, h, w]))
+            name, TensorProto.UINT8, [spec.batch, WINDOW, c, h, w]))
         axes = const(f"{name}_axes", np.array([1, 2, 3, 4], np.int64))
         col = const(f"{name}_col", np.array([-1, 1], np.int64))
         scale = const(f"{name}_scale", np.array(1 / 255, np.float32))

@@ -84,5 +84,9 @@ def test_a_longer_context_reads_the_gap_everywhere():
     assert not torch.allclose(action, other_gap)  # the gap reaches the network
     with pytest.raises(ValueError, match="expected 3 conditioning inputs"):
         model.encode_inputs(td["obs"], td["wrist"])
-    with pytest.raises(ValueError, match="T_o = 4 needs a gap input"):
-        InferenceGraph(model, nfe=1)
+    # the ONNX graph takes the window alone and conditions on the inference gap, T_o
+    graph = InferenceGraph(model, nfe=1)
+    assert graph.input_names == ["observation", "cam", "prior_noise"]
+    with torch.no_grad():
+        at_t_o = policy(td.clone().set("gap", torch.full((4,), 4)))["action"]
+        torch.testing.assert_close(graph(td["obs"], td["wrist"], td["prior_noise"]), at_t_o)
