@@ -12,7 +12,7 @@ Per observation the transforms are::
     o (..., D)  -UnsqueezeTransform->  (..., 1, D)  -CatFrames(T_o)->  (..., T_o, D)
                 -ContextWindow (T_o > 2)->  (..., 2, D) = [o^{s-T_o}, o^{s-1}],  obs_gap = T_o
 
-preceded by ``InitTracker`` (the ``is_init`` entry ``MultiStepActorWrapper`` re-plans on).
+and ``InitTracker`` (the ``is_init`` entry ``MultiStepActorWrapper`` re-plans on).
 `window_transforms` reads the keys a `FlowPolicy` needs from the policy; `observation_windows`
 takes them explicitly (the library's own envs use it).
 """
@@ -136,7 +136,7 @@ def observation_windows(
     gap_key: NestedKey = keys.OBS_GAP,
     init_key: str = "is_init",
 ) -> Compose:
-    """``InitTracker`` and, per entry, the window transforms (module docstring).
+    """Per entry, the window transforms (module docstring), and ``InitTracker``.
 
     Args:
         obs_horizon: T_o >= 2.
@@ -159,7 +159,7 @@ def observation_windows(
     vectors = dict({keys.OBSERVATION: keys.OBS_WINDOW} if vectors is None else vectors)
     entries = [(src, win, 1) for src, win in vectors.items()]
     entries += [(src, win, 3) for src, win in dict(cameras or {}).items()]
-    transforms: list[Transform] = [InitTracker(init_key)]
+    transforms: list[Transform] = []
     for source, window, event in entries:
         if source == window:
             raise ValueError(f"the window of {source!r} needs its own key (the env's one-step "
@@ -172,7 +172,8 @@ def observation_windows(
     if obs_horizon > 2:
         transforms.append(ContextWindow(int(obs_horizon), [w for _, w, _ in entries],
                                         [e for _, _, e in entries], gap_key))
-    return Compose(*transforms)
+    # last: InitTracker finds its parent env even when this Compose sits inside another one
+    return Compose(*transforms, InitTracker(init_key))
 
 
 def _flow_policy(policy: nn.Module):

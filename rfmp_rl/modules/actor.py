@@ -27,8 +27,9 @@ __all__ = ["RecedingHorizonActor", "make_actor"]
 
 
 class RecedingHorizonActor(MultiStepActorWrapper):
-    """``MultiStepActorWrapper`` that also acts in an unbatched env (batch size ``[]``): such an
-    input is run as a batch of one and written back.
+    """``MultiStepActorWrapper`` around a `FlowPolicy` that also acts in an unbatched env (batch
+    size ``[]``: such an input is run as a batch of one and written back) and makes the primer of
+    its state (`make_tensordict_primer`).
 
     Example:
         >>> from tensordict import TensorDict
@@ -41,6 +42,22 @@ class RecedingHorizonActor(MultiStepActorWrapper):
         >>> td["action"].shape, td["action_orig"].shape, td["counter"].tolist()
         (torch.Size([1]), torch.Size([4, 1]), [1])
     """
+
+    def make_tensordict_primer(self) -> TensorDictPrimer:
+        """The env state this actor keeps between steps: its chunk ``(T_p, D)`` (``action_orig``)
+        and step counter ``(1,)``, registered in the env so batched envs that copy only declared
+        entries (``ParallelEnv``) carry them. TorchRL finds it by this name
+        (``torchrl.modules.utils.get_primers_from_module``, a ``Collector`` with
+        ``auto_register_policy_transforms=True``)."""
+        policy = self.actor
+        chunk = (self.n_steps, policy.model.action_dim)  # (T_p, D)
+        return TensorDictPrimer(
+            {
+                self._actor_keys_map[policy.action_key]: Unbounded(chunk, dtype=torch.float32),
+                self.counter_key: Unbounded((1,), dtype=torch.int32),
+            },
+            expand_specs=True,
+        )
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         if tensordict.batch_dims:
@@ -94,12 +111,4 @@ def make_actor(
     cfg = policy.model.cfg
     steps = int(cfg.action_steps if action_steps is None else action_steps)
     actor = RecedingHorizonActor(policy, n_steps=cfg.horizon, replan_interval=steps)
-    chunk = (cfg.horizon, policy.model.action_dim)  # (T_p, D)
-    primer = TensorDictPrimer(
-        {
-            actor._actor_keys_map[policy.action_key]: Unbounded(chunk, dtype=torch.float32),
-            actor.counter_key: Unbounded((1,), dtype=torch.int32),
-        },
-        expand_specs=True,
-    )
-    return actor, primer
+    return actor, actor.make_tensordict_primer()
