@@ -304,7 +304,7 @@ class PushTEnv(EnvBase):
             self._last[i] = self._observe(i, sim_obs)
         self._max_coverage[:] = self._coverage
         td = self._pack(self._coverage, self._max_coverage, self._count, self._terminated,
-                        self._truncated)
+                        self._truncated).exclude("reward")  # a reward comes with a step only
         td.set("seed", torch.as_tensor(seeds, dtype=torch.int64, device=self.device))
         return td
 
