@@ -149,7 +149,7 @@ def observation_windows(
 
     Example:
         >>> from rfmp_rl.envs import make_lasa_sphere_env
-        >>> env = make_lasa_sphere_env(["Angle"], batch_size=[3], obs_horizon=4)
+        >>> env = make_lasa_sphere_env(torch.tensor([1.0, 0.0, 0.0]), [3], obs_horizon=4)
         >>> td = env.reset()
         >>> td["obs_window"].shape, td["obs_gap"].tolist()
         (torch.Size([3, 2, 3]), [4.0, 4.0, 4.0])
