@@ -145,3 +145,21 @@ def test_unbatched_input_is_written_back(lasa_model):
     actor(td)
     torch.testing.assert_close(td["action"], td["action_orig"][1])
     assert td["counter"].tolist() == [2]
+
+
+def test_torchrl_finds_the_primer_on_the_actor(lasa_model):
+    from torchrl.collectors import Collector
+    from torchrl.envs import TensorDictPrimer
+    from torchrl.modules.utils import get_primers_from_module
+
+    actor, primer = make_actor(lasa_model, observation_key=keys.OBS_WINDOW)
+    found = get_primers_from_module(actor)
+    assert isinstance(found, TensorDictPrimer)
+    assert set(found.primers.keys()) == set(primer.primers.keys()) == {"action_orig", "counter"}
+    # a Collector that registers the policy's transforms appends it to the env by itself
+    collector = Collector(make_lasa_sphere_env(EAST, [2], seed=0), actor, frames_per_batch=8,
+                          total_frames=8, auto_register_policy_transforms=True)
+    (batch,) = list(collector)
+    collector.shutdown()
+    assert batch["counter"][..., 0].tolist() == [[1, 2, 1, 2]] * 2
+    assert batch["action_orig"].shape == (2, 4, 4, 3)
