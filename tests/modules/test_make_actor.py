@@ -52,7 +52,13 @@ def test_readme_acting_section_trains_and_acts_in_plain_serial_and_parallel_envs
     ), "the README example must use an env the rest of the suite does not"
     torch.manual_seed(0)
     namespace = {"__name__": "__main__"}
-    exec(compile(code, "README.md", "exec"), namespace)
+    try:
+        exec(compile(code, "README.md", "exec"), namespace)
+    finally:  # worker processes end even when the code fails
+        for env in namespace.get("envs", []):
+            if not env.is_closed:
+                env.close()
+    assert all(env.is_closed for env in namespace["envs"])
     plain, serial, parallel = namespace["rollouts"]
     assert plain["action"].shape == (300, 1)
     assert serial["action"].shape == parallel["action"].shape == (2, 300, 1)
