@@ -10,14 +10,14 @@ from pathlib import Path
 
 import torch
 from omegaconf import DictConfig, OmegaConf
-from torchrl.modules import MultiStepActorWrapper
 
 ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
 from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.modules import FlowPolicy  # noqa: E402
+from rfmp_rl.modules import RecedingHorizonActor  # noqa: E402
+from rfmp_rl.modules import make_actor as make_receding_actor  # noqa: E402
 from rfmp_rl.solvers import SolverConfig  # noqa: E402
 
 #: Recipe algorithm name -> ModelConfig algorithm.
@@ -216,12 +216,13 @@ def end_time(model, nfe: int, t_end: float) -> float:
 
 
 def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,
-               camera_keys=None) -> MultiStepActorWrapper:
-    """FlowPolicy executing T_a of every T_p actions (receding horizon)."""
-    policy = FlowPolicy(model, observation_key=observation_key, camera_keys=camera_keys,
-                        solver=solver_config(model, nfe, t_end))
-    return MultiStepActorWrapper(policy, n_steps=model.cfg.horizon,
-                                 replan_interval=model.cfg.action_steps)
+               camera_keys=None) -> RecedingHorizonActor:
+    """FlowPolicy executing T_a of every T_p actions (receding horizon;
+    `rfmp_rl.modules.make_actor`)."""
+    actor, _ = make_receding_actor(model, observation_key=observation_key,
+                                   camera_keys=camera_keys,
+                                   solver=solver_config(model, nfe, t_end))
+    return actor
 
 
 def sweep_settings(model, nfes, t_ends, time_table=()) -> list[tuple[int, float]]:

@@ -9,6 +9,8 @@ latest observation ``o_r`` yields the chunk whose first action is executed now.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import torch
 from tensordict import TensorDict, TensorDictBase
 from tensordict.utils import NestedKey
@@ -35,6 +37,9 @@ class SlicesToChunks(Transform):
         observation_keys: keys stacked into windows (each ``(..., D)`` -> ``(B, 2, D)``);
             ``"a/b"`` (the manifest's form) or ``("a", "b")``.
         action_key: the action entry, in either form.
+        key_map: renames of the output entries, ``{input key: output key}`` (an observation key,
+            the action key or ``"action_is_pad"``); e.g. ``{"observation": "obs_window"}``
+            writes the windows where a policy reading ``obs_window`` finds them.
 
     Example:
         >>> from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
@@ -45,6 +50,9 @@ class SlicesToChunks(Transform):
         >>> _ = rb.extend(data)
         >>> SlicesToChunks(horizon=4)(rb.sample())["action"].shape
         torch.Size([5, 4, 2])
+        >>> SlicesToChunks(horizon=4, key_map={"observation": "obs_window"})(
+        ...     rb.sample())["obs_window"].shape
+        torch.Size([5, 2, 3])
     """
 
     def __init__(
@@ -52,11 +60,22 @@ class SlicesToChunks(Transform):
         horizon: int,
         observation_keys: list[NestedKey] | None = None,
         action_key: NestedKey = keys.ACTION,
+        key_map: Mapping[NestedKey, NestedKey] | None = None,
     ) -> None:
         super().__init__()
         self.horizon = int(horizon)
         self.observation_keys = [parse_key(k) for k in observation_keys or [keys.OBSERVATION]]
         self.action_key = parse_key(action_key)
+        self.key_map = {parse_key(k): parse_key(v) for k, v in dict(key_map or {}).items()}
+        written = [*self.observation_keys, self.action_key, keys.ACTION_IS_PAD]
+        unknown = [key_name(k) for k in self.key_map if k not in written]
+        if unknown:
+            raise KeyError(f"SlicesToChunks: key_map renames {unknown}, which it does not write "
+                           f"(it writes {[key_name(k) for k in written]})")
+        targets = [self.key_map.get(k, k) for k in written]
+        if len(set(targets)) != len(targets):
+            raise ValueError(f"SlicesToChunks: key_map writes two entries to one key "
+                             f"({[key_name(k) for k in targets]})")
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         length = self.horizon + 1
@@ -73,9 +92,11 @@ class SlicesToChunks(Transform):
                                f"steps (keys: {listed})")
         slices = tensordict.reshape(-1, length)  # (B, T_p + 1)
         out = TensorDict({}, batch_size=slices.batch_size[:1])
+        rename = self.key_map.get
         for key in self.observation_keys:
-            out.set(key, slices.get(key)[:, :2])  # (B, 2, D): [o_{r-1}, o_r]
+            out.set(rename(key, key), slices.get(key)[:, :2])  # (B, 2, D): [o_{r-1}, o_r]
         action = slices.get(self.action_key)[:, 1:]  # (B, T_p, D): a_r .. a_{r+T_p-1}
-        out.set(self.action_key, action)
-        out.set(keys.ACTION_IS_PAD, torch.zeros(action.shape[:2], dtype=torch.bool))
+        out.set(rename(self.action_key, self.action_key), action)
+        out.set(rename(keys.ACTION_IS_PAD, keys.ACTION_IS_PAD),
+                torch.zeros(action.shape[:2], dtype=torch.bool))
         return out

@@ -3,6 +3,7 @@
 from rfmp_rl.envs.lasa_sphere import LasaSphereEnv, make_lasa_sphere_env
 from rfmp_rl.envs.pusht import PushTEnv, make_pusht_env, pusht_episodes
 from rfmp_rl.envs.robosuite import RobosuiteEnv, make_robosuite_env
+from rfmp_rl.envs.transforms import ContextWindow, observation_windows, window_transforms
 
 __all__ = [
     "LasaSphereEnv",
@@ -12,4 +13,7 @@ __all__ = [
     "pusht_episodes",
     "RobosuiteEnv",
     "make_robosuite_env",
+    "ContextWindow",
+    "observation_windows",
+    "window_transforms",
 ]

@@ -14,17 +14,10 @@ from collections.abc import Sequence
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import (
-    CatFrames,
-    CatTensors,
-    Compose,
-    EnvBase,
-    InitTracker,
-    TransformedEnv,
-    UnsqueezeTransform,
-)
+from torchrl.envs import CatTensors, Compose, EnvBase, TransformedEnv
 
 from rfmp_rl import keys
+from rfmp_rl.envs.transforms import observation_windows
 from rfmp_rl.manifolds.base import safe_norm
 from rfmp_rl.manifolds.sphere import Sphere
 
@@ -254,14 +247,14 @@ def make_lasa_sphere_env(
     """`LasaSphereEnv` with the transforms an RFMP policy reads.
 
     ``InitTracker`` writes ``is_init`` (needed by ``MultiStepActorWrapper``);
-    ``UnsqueezeTransform`` + ``CatFrames`` stack the last ``obs_horizon`` observations into
-    ``obs_window (*B, obs_horizon, 3)``, oldest first (after a reset the first observation is
-    repeated).
+    ``obs_window (*B, 2, 3)`` = ``[o^{s-T_o}, o^{s-1}]`` holds the oldest and the latest of the
+    last ``obs_horizon`` (T_o) observations (after a reset the first observation is repeated)
+    and, with T_o > 2, ``obs_gap (*B,)`` = T_o (`rfmp_rl.envs.observation_windows`).
 
     Args:
         start_points: see `LasaSphereEnv`.
-        batch_size: see `LasaSphereEnv`; ``MultiStepActorWrapper`` needs a batched env (``[N]``).
-        obs_horizon: number of stacked observations (T_o).
+        batch_size: see `LasaSphereEnv`.
+        obs_horizon: T_o, the observations the window's context is taken from.
         **env_kwargs: forwarded to `LasaSphereEnv` (``max_step``, ``goal_tolerance``,
             ``max_steps``, ``start_noise``, ``goal``, ``seed``, ``device``, ``context``). With a
             ``context`` (e.g. a one-hot shape id per batch element), each window step is
@@ -285,12 +278,5 @@ def make_lasa_sphere_env(
             )
         ]
         source = "obs_cond"
-    return TransformedEnv(
-        env,
-        Compose(
-            InitTracker(),
-            *extra,
-            UnsqueezeTransform(dim=-2, in_keys=[source], out_keys=[keys.OBS_STEP]),
-            CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
-        ),
-    )
+    windows = observation_windows(obs_horizon, {source: keys.OBS_WINDOW})
+    return TransformedEnv(env, Compose(*extra, windows))

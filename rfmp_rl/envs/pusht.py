@@ -32,16 +32,10 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import (
-    CatFrames,
-    Compose,
-    EnvBase,
-    InitTracker,
-    TransformedEnv,
-    UnsqueezeTransform,
-)
+from torchrl.envs import EnvBase, TransformedEnv
 
 from rfmp_rl import keys
+from rfmp_rl.envs.transforms import observation_windows
 from rfmp_rl.manifolds.stereographic import plane_to_sphere, sphere_to_plane
 
 __all__ = [
@@ -310,7 +304,7 @@ class PushTEnv(EnvBase):
             self._last[i] = self._observe(i, sim_obs)
         self._max_coverage[:] = self._coverage
         td = self._pack(self._coverage, self._max_coverage, self._count, self._terminated,
-                        self._truncated)
+                        self._truncated).exclude("reward")  # a reward comes with a step only
         td.set("seed", torch.as_tensor(seeds, dtype=torch.int64, device=self.device))
         return td
 
@@ -339,27 +333,21 @@ def make_pusht_env(
     obs_horizon: int = 2,
     **env_kwargs,
 ) -> TransformedEnv:
-    """`PushTEnv` with the observation windows an RFMP policy reads.
+    """`PushTEnv` with the observation windows an RFMP policy reads
+    (`rfmp_rl.envs.observation_windows`).
 
-    ``obs_window (N, T_o, D)`` stacks the last ``obs_horizon`` observations (oldest first; after
-    a reset the first is repeated) and, for images, ``pixels_window (N, T_o, 3, 96, 96)``.
+    ``obs_window (N, 2, D)`` = ``[o^{s-T_o}, o^{s-1}]``, the oldest and the latest of the last
+    ``obs_horizon`` (T_o) observations (after a reset the first is repeated); for images
+    ``pixels_window (N, 2, 3, 96, 96)`` the same way; with T_o > 2 ``obs_gap (N,)`` = T_o.
     ``InitTracker`` writes ``is_init`` for ``MultiStepActorWrapper``.
 
     Example:
-        >>> env = make_pusht_env([2], space="sphere")
-        >>> env.reset()["obs_window"].shape
-        torch.Size([2, 2, 30])
+        >>> env = make_pusht_env([2], space="sphere", obs_horizon=4)
+        >>> td = env.reset()
+        >>> td["obs_window"].shape, td["obs_gap"].tolist()
+        (torch.Size([2, 2, 30]), [4.0, 4.0])
     """
     env = PushTEnv(batch_size, **env_kwargs)
-    transforms = [
-        InitTracker(),
-        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=[keys.OBS_STEP]),
-        CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
-    ]
-    if env.obs_type == "image":
-        transforms += [
-            UnsqueezeTransform(dim=-4, in_keys=[keys.PIXELS], out_keys=[keys.PIXELS_STEP]),
-            CatFrames(N=obs_horizon, dim=-4, in_keys=[keys.PIXELS_STEP],
-                      out_keys=[keys.PIXELS_WINDOW]),
-        ]
-    return TransformedEnv(env, Compose(*transforms))
+    cameras = {keys.PIXELS: keys.PIXELS_WINDOW} if env.obs_type == "image" else None
+    windows = observation_windows(obs_horizon, {keys.OBSERVATION: keys.OBS_WINDOW}, cameras)
+    return TransformedEnv(env, windows)

@@ -54,16 +54,10 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import (
-    CatFrames,
-    Compose,
-    EnvBase,
-    InitTracker,
-    TransformedEnv,
-    UnsqueezeTransform,
-)
+from torchrl.envs import EnvBase, TransformedEnv
 
 from rfmp_rl import keys
+from rfmp_rl.envs.transforms import observation_windows
 
 __all__ = [
     "RobosuiteEnv",
@@ -516,9 +510,11 @@ def make_robosuite_env(
 ) -> TransformedEnv:
     """`RobosuiteEnv` with the observation windows an RFMP policy reads.
 
-    ``obs_window (N, T_o, D)`` stacks the last ``obs_horizon`` observations (oldest first; after
-    a reset the first is repeated) and each camera adds ``<name>_image_window
-    (N, T_o, 3, H, W)``. ``InitTracker`` writes ``is_init`` for ``MultiStepActorWrapper``.
+    ``obs_window (N, 2, D)`` = ``[o^{s-T_o}, o^{s-1}]``, the oldest and the latest of the last
+    ``obs_horizon`` (T_o) observations (after a reset the first is repeated); each camera adds
+    ``<name>_image_window (N, 2, 3, H, W)`` the same way; with T_o > 2 ``obs_gap (N,)`` = T_o
+    (`rfmp_rl.envs.observation_windows`). ``InitTracker`` writes ``is_init`` for
+    ``MultiStepActorWrapper``.
 
     Example::
 
@@ -528,15 +524,6 @@ def make_robosuite_env(
         td["agentview_image_window"].shape  # torch.Size([2, 2, 3, 84, 84])
     """
     env = RobosuiteEnv(task, batch_size, **env_kwargs)
-    transforms = [
-        InitTracker(),
-        UnsqueezeTransform(dim=-2, in_keys=[keys.OBSERVATION], out_keys=[keys.OBS_STEP]),
-        CatFrames(N=obs_horizon, dim=-2, in_keys=[keys.OBS_STEP], out_keys=[keys.OBS_WINDOW]),
-    ]
-    for cam in env.cameras:
-        transforms += [
-            UnsqueezeTransform(dim=-4, in_keys=[f"{cam}_image"], out_keys=[f"{cam}_image_step"]),
-            CatFrames(N=obs_horizon, dim=-4, in_keys=[f"{cam}_image_step"],
-                      out_keys=[f"{cam}_image_window"]),
-        ]
-    return TransformedEnv(env, Compose(*transforms))
+    cameras = {f"{cam}_image": f"{cam}_image_window" for cam in env.cameras}
+    windows = observation_windows(obs_horizon, {keys.OBSERVATION: keys.OBS_WINDOW}, cameras)
+    return TransformedEnv(env, windows)

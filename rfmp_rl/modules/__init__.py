@@ -1,5 +1,6 @@
 """Normalisers, EMA, the policy networks and their TensorDict modules."""
 
+from rfmp_rl.modules.actor import RecedingHorizonActor, make_actor
 from rfmp_rl.modules.ema import EMA
 from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
 from rfmp_rl.modules.policy_model import (
@@ -24,4 +25,6 @@ __all__ = [
     "unwrap_policy_model",
     "VectorField",
     "FlowPolicy",
+    "RecedingHorizonActor",
+    "make_actor",
 ]
