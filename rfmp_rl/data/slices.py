@@ -12,12 +12,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDictBase
 from tensordict.utils import NestedKey
 from torchrl.envs.transforms import Transform
 
 from rfmp_rl import keys
 from rfmp_rl.data.episodes import key_name, parse_key
+from rfmp_rl.data.store import ContextChunk, sample_indices
 
 __all__ = ["SlicesToChunks"]
 
@@ -30,7 +31,9 @@ class SlicesToChunks(Transform):
     size, so it cannot sit inside a ``TensorDictReplayBuffer``, which writes the sampled indices
     back into the batch after its transforms.) Each slice ``[o/a_{r-1}, ..., a_{r+T_p-1}]``
     becomes ``observation (B, 2, D_obs)`` = ``[o_{r-1}, o_r]``, ``action (B, T_p, D)`` and
-    ``action_is_pad (B, T_p)`` (all False: strict slices never cross an episode end).
+    ``action_is_pad (B, T_p)`` (all False: strict slices never cross an episode end). The
+    windows are built as `rfmp_rl.data.DemonstrationStore`'s sampler builds them
+    (`rfmp_rl.data.sample_indices` within each slice, then `rfmp_rl.data.ContextChunk`).
 
     Args:
         horizon: T_p.
@@ -42,6 +45,7 @@ class SlicesToChunks(Transform):
             writes the windows where a policy reading ``obs_window`` finds them.
 
     Example:
+        >>> from tensordict import TensorDict
         >>> from torchrl.data import LazyTensorStorage, SliceSampler, TensorDictReplayBuffer
         >>> data = TensorDict({"observation": torch.randn(40, 3), "action": torch.randn(40, 2),
         ...                    "episode": torch.arange(40) // 20}, [40])
@@ -76,6 +80,7 @@ class SlicesToChunks(Transform):
         if len(set(targets)) != len(targets):
             raise ValueError(f"SlicesToChunks: key_map writes two entries to one key "
                              f"({[key_name(k) for k in targets]})")
+        self._chunk = ContextChunk(self.horizon, self.observation_keys, action_key=self.action_key)
 
     def forward(self, tensordict: TensorDictBase) -> TensorDictBase:
         length = self.horizon + 1
@@ -90,13 +95,21 @@ class SlicesToChunks(Transform):
                 listed = ", ".join(sorted(key_name(k) for k in present))
                 raise KeyError(f"SlicesToChunks: no entry {key_name(key)!r} in the sampled "
                                f"steps (keys: {listed})")
-        slices = tensordict.reshape(-1, length)  # (B, T_p + 1)
-        out = TensorDict({}, batch_size=slices.batch_size[:1])
-        rename = self.key_map.get
-        for key in self.observation_keys:
-            out.set(rename(key, key), slices.get(key)[:, :2])  # (B, 2, D): [o_{r-1}, o_r]
-        action = slices.get(self.action_key)[:, 1:]  # (B, T_p, D): a_r .. a_{r+T_p-1}
-        out.set(rename(self.action_key, self.action_key), action)
-        out.set(rename(keys.ACTION_IS_PAD, keys.ACTION_IS_PAD),
-                torch.zeros(action.shape[:2], dtype=torch.bool))
+        slices = tensordict.reshape(-1, length)  # (B, T_p + 1), one episode segment each
+        batch = slices.shape[0]
+        # Within a slice, the reference step r is step 1 and the segment is the episode: the
+        # store's index maths give [o_{r-1}, o_r, a_r .. a_{r+T_p-1}] and the padding (none).
+        index, pad = sample_indices(
+            reference=torch.ones(batch, dtype=torch.long),
+            gap=torch.full((batch,), 2, dtype=torch.long),
+            episode_start=torch.zeros(batch, dtype=torch.long),
+            episode_end=torch.full((batch,), length - 1, dtype=torch.long),
+            horizon=self.horizon,
+        )
+        steps = slices[torch.arange(batch)[:, None], index]  # (B, 2 + T_p)
+        chunk = self._chunk(steps)
+        chunk.set(keys.ACTION_IS_PAD, pad)
+        out = chunk.empty()
+        for key in [*self.observation_keys, self.action_key, keys.ACTION_IS_PAD]:
+            out.set(self.key_map.get(key, key), chunk.get(key))
         return out

@@ -344,6 +344,10 @@ class DemonstrationStore:
         """
         if not episodes:
             raise DataError("no episodes to store")
+        for i, ep in enumerate(episodes):
+            if ep.batch_dims != 1 or ep.batch_size[0] < 1:
+                raise DataError(f"an episode must have batch size [T] with T >= 1, got "
+                                f"{tuple(ep.batch_size)}", episode=i)
         if manifest is None:
             manifest = Manifest(source="<episodes>", format="episodes")
             for i, ep in enumerate(episodes):

@@ -1,7 +1,9 @@
-"""Smoke test of the README main job with tiny overrides: all outputs exist and hold numbers."""
+"""The README main job: its training samples, and a smoke run with tiny overrides (all outputs
+exist and hold numbers)."""
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import math
 import subprocess
@@ -9,12 +11,46 @@ import sys
 from pathlib import Path
 
 import pytest
+import torch
+from omegaconf import OmegaConf
 
 ROOT = Path(__file__).resolve().parents[2]
 
-pytestmark = pytest.mark.slow
+
+def load_quickstart():
+    spec = importlib.util.spec_from_file_location("quickstart", ROOT / "recipes" / "quickstart.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
+def test_quickstart_samples_come_from_the_store_with_hold_steps_and_shape_ids():
+    qs = load_quickstart()
+    cfg = OmegaConf.create({"shapes": ["LShape", "Sine"], "downsample": 25, "hold_steps": 3,
+                            "horizon": 4, "batch_size": 512, "seed": 0})
+    demos = qs.load_shapes(cfg)  # {shape: (7, 40, 3)}
+    store = qs.make_store(cfg)
+    assert store.num_episodes == 14 and len(store) == 14 * (40 + 3)
+    batch = qs.make_replay_buffer(store, cfg).sample()
+    assert batch["observation"].shape == (512, 2, 5) and batch["action"].shape == (512, 4, 3)
+    for i in range(0, 512, 37):
+        ref = int(batch["index"][i, 1])
+        episode, step = divmod(ref, 43)
+        demo = demos[cfg.shapes[episode // 7]][episode % 7]  # (40, 3)
+        held = torch.cat([demo, demo[-1:].expand(3, -1)])  # the goal held 3 more steps
+        # window [x_{r-1}, x_r] (the first step repeats x_0) with the shape's one-hot id
+        torch.testing.assert_close(batch["observation"][i, :, :3],
+                                   held[[max(step - 1, 0), step]])
+        assert batch["observation"][i, :, 3:].tolist() == [[1.0 * (episode < 7),
+                                                            1.0 * (episode >= 7)]] * 2
+        # the chunk: the next T_p points, the last repeated past the episode end (padded)
+        nxt = torch.cat([held[1:], held[-1:]])
+        chunk = [min(step + k, 42) for k in range(4)]
+        torch.testing.assert_close(batch["action"][i], nxt[chunk])
+        assert batch["action_is_pad"][i].tolist() == [step + k > 42 for k in range(4)]
+
+
+@pytest.mark.slow
 def test_quickstart_runs_end_to_end_with_tiny_overrides(tmp_path):
     out = tmp_path / "run"
     cmd = [
@@ -43,6 +79,7 @@ def test_quickstart_runs_end_to_end_with_tiny_overrides(tmp_path):
     assert float(line.rsplit("difference", 1)[1].split()[0]) <= 1e-4
 
 
+@pytest.mark.slow
 def test_quickstart_seeds_benchmark_writes_one_row_per_seed(tmp_path):
     out = tmp_path / "seeds.md"
     cmd = [
