@@ -355,6 +355,7 @@ class TaskEval:
         columns: the figures of the markdown table (the first three are printed as rows finish).
         labels: ``{field: value}`` opening every row (algorithm, task variant).
         max_steps: the episode limit when ``eval.max_steps`` is null.
+        num_envs: envs stepped side by side when ``eval.num_envs`` is null (None: every seed).
         paper: ``{(NFE, T): value}``: the paper's figure for the column marked ``paper=True``.
         plot: ``(field, axis label, y range)`` of eval.png, or None for no plot.
         notes: lines printed under the table.
@@ -368,6 +369,7 @@ class TaskEval:
     columns: list[Column]
     labels: dict
     max_steps: int | None = None
+    num_envs: int | None = None
     paper: dict = field(default_factory=dict)
     plot: tuple | None = None
     notes: list[str] = field(default_factory=list)
@@ -384,8 +386,10 @@ def show(task: TaskEval):
 
 def run_sweep(model, cfg: DictConfig, task: TaskEval, progress=None) -> list[dict]:
     """Every (NFE, T) of ``cfg.eval`` for ``model`` in the task's envs; one row each."""
+    settings = eval_config(cfg)
+    settings.num_envs = settings.num_envs or task.num_envs
     return sweep(task.env_fn, model, lambda nfe, t_end: task.make_actor(model, nfe, t_end),
-                 eval_config(cfg), task.metrics, seed=int(cfg.seed), labels=task.labels,
+                 settings, task.metrics, seed=int(cfg.seed), labels=task.labels,
                  summary=task.summary, max_steps=task.max_steps, env_kwargs=task.env_kwargs,
                  progress=progress)
 

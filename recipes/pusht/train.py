@@ -29,18 +29,7 @@ from utils import (
     selection_score,
 )
 
-from recipes.common import (
-    build_training,
-    eval_model,
-    exit_code,
-    fit,
-    fixed_settings,
-    report,
-    run_sweep,
-    show,
-    start_run,
-    upgrade_argv,
-)
+from recipes import common
 from rfmp_rl import keys
 from rfmp_rl.training import FitResult
 
@@ -56,23 +45,24 @@ def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
     """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
     check_config(cfg)
     name = f"{cfg.algo}_{cfg.obs}_{cfg.space}_{datetime.now():%Y%m%d_%H%M%S}"
-    cfg, runtime, run_dir, last = start_run(cfg, "pusht", fixed_settings(cfg, TASK_KEYS),
-                                            overrides, name)
+    fixed = common.fixed_settings(cfg, TASK_KEYS)
+    cfg, runtime, run_dir, last = common.start_run(cfg, "pusht", fixed, overrides, name)
     check_config(cfg)
-    model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer, make_model,
-                                       f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})")
-    result = fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
-                 camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
-                 rollout_score=selection_score(cfg))
+    what = f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})"
+    model, rb, val_rb = common.build_training(cfg, runtime, make_stores, make_replay_buffer,
+                                              make_model, what)
+    result = common.fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
+                        camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
+                        rollout_score=selection_score(cfg))
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
-        best, meta = eval_model(run_dir / "best.pt", cfg, runtime)
+        best, meta = common.eval_model(run_dir / "best.pt", cfg, runtime)
         task = eval_task(cfg)
-        rows = run_sweep(best, cfg, task, progress=show(task))
+        rows = common.run_sweep(best, cfg, task, progress=common.show(task))
         title = (f"Push-T {cfg.obs} {cfg.space}: {cfg.algo} ({cfg.model.unet_preset}, best of "
                  f"{result.steps} steps at step {meta['extra'].get('step')}, "
                  f"{result.minutes:.0f} min)")
         command = f"python recipes/pusht/eval.py checkpoint={run_dir / 'best.pt'}"
-        print(report(rows, run_dir / "eval", cfg, task, title, command).read_text())
+        print(common.report(rows, run_dir / "eval", cfg, task, title, command).read_text())
     if runtime.is_main:
         print(f"run folder: {run_dir}")
     runtime.shutdown()
@@ -84,9 +74,9 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     _, result = run(cfg, overrides=list(HydraConfig.get().overrides.task))
-    raise SystemExit(exit_code(result))
+    raise SystemExit(common.exit_code(result))
 
 
 if __name__ == "__main__":
-    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
+    sys.argv = common.upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
     main()

@@ -169,7 +169,8 @@ class SeedResults:
 
 
 def _finite(values: Sequence[float]) -> torch.Tensor:
-    # float32, as the env's figures are: a row's mean is that of the seeds' float32 values
+    # float32, as the env's figures are: a row's mean and spread are those of the seeds' values
+    # taken as one float32 batch, whichever way the seeds were grouped
     return torch.tensor([float(v) for v in values if not math.isnan(float(v))])
 
 
@@ -187,8 +188,8 @@ def seed_std(values: Sequence[float]) -> float:
 
 def seed_max(values: Sequence[float]) -> float:
     """The largest value over seeds (NaN when none is defined)."""
-    kept = _finite(values)
-    return float(kept.max()) if kept.numel() else float("nan")
+    kept = [float(v) for v in values if not math.isnan(float(v))]
+    return max(kept) if kept else float("nan")
 
 
 def _mean_summary(values: Mapping[str, Sequence[float]]) -> dict[str, float]:
