@@ -114,3 +114,14 @@ def test_training_seeds_of_one_setting_are_averaged_and_others_kept_apart(report
     seeded = [line for line in text.splitlines() if line.startswith("| s0 (0)")]
     assert seeded == ["| s0 (0), s1 (1), s2 (2) | 0.870 (0.840, 0.900, 0.870) | - |"]
     assert "lr (1)" not in text
+
+
+def test_runs_of_earlier_versions_are_reported_in_todays_names(report, tmp_path):
+    run = _run(tmp_path / "old", {(1, 1.0): 0.4}, algo="ddim")
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    flat = {k: v for k, v in cfg.items() if k not in ("model", "loss")}
+    flat.update(algo="dp", horizon=8, t0_fraction=0.0, preset="small", prior="uniform")
+    (run / "config.yaml").write_text(yaml.safe_dump(flat))
+    text = report.main([str(run)])
+    assert "train.py algo=ddim obs=state space=euclidean model.horizon=8`" in text
+    assert "| ddim state euclidean" in text
