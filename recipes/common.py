@@ -16,6 +16,7 @@ from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
 from torchrl.modules import MultiStepActorWrapper
 
 from rfmp_rl import keys
@@ -182,9 +183,10 @@ def load_for_eval(cfg: DictConfig, check_config) -> tuple:
     try:
         task = OmegaConf.merge(cfg, stored, {"seed": cfg.seed, "threads": cfg.threads,
                                              **runtime})
-    except Exception as err:  # a setting this version's recipe no longer has
+    except OmegaConfBaseException as err:  # a setting this version's recipe does not have
         raise SystemExit(f"eval.py: {checkpoint} stores settings this recipe does not know "
-                         f"({err}); rename them in its config as `upgrade_config` does") from err
+                         f"({err}); rename or remove them in the checkpoint's 'config' entry "
+                         "(torch.load, edit, torch.save) and evaluate again") from err
     check_config(task)
     from rfmp_rl.training import compile_networks, resolve_device
 

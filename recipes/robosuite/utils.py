@@ -44,6 +44,24 @@ CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
 #: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
 TASK_KEYS = ("task", "obs", "action_space", "geometry")
 
+#: The paper's success rates on the state-based robomimic tasks (its table "Success rate as a
+#: function of different NFE values on the state-based Robomimic tasks"), at T = 1.
+_PAPER_NFES = (1, 2, 3, 5, 10)
+PAPER = {
+    (task, algo): {(nfe, 1.0): v for nfe, v in zip(_PAPER_NFES, values, strict=True)}
+    for (task, algo), values in {
+        ("Lift", "rfmp"): (0.992, 0.992, 0.992, 0.992, 0.992),
+        ("Lift", "srfmp"): (1.000, 0.992, 0.992, 0.996, 1.000),
+        ("Lift", "ddim"): (0.008, 0.756, 0.948, 0.956, 0.976),
+        ("PickPlaceCan", "rfmp"): (0.976, 0.996, 0.996, 0.996, 0.996),
+        ("PickPlaceCan", "srfmp"): (0.980, 0.980, 0.996, 0.992, 0.968),
+        ("PickPlaceCan", "ddim"): (0.004, 0.340, 0.836, 0.924, 0.908),
+        ("NutAssemblySquare", "rfmp"): (0.792, 0.848, 0.920, 0.896, 0.912),
+        ("NutAssemblySquare", "srfmp"): (0.776, 0.800, 0.828, 0.824, 0.848),
+        ("NutAssemblySquare", "ddim"): (0.012, 0.384, 0.628, 0.672, 0.684),
+    }.items()
+}
+
 
 def check_config(cfg: DictConfig) -> None:
     if cfg.task not in ROBOSUITE_TASKS:
@@ -238,11 +256,14 @@ def eval_task(cfg: DictConfig) -> TaskEval:
         env_fn=make_robosuite_env, env_kwargs=env_kwargs(cfg),
         make_actor=lambda model, nfe, t_end: make_env_actor(model, cfg, nfe, t_end),
         metrics=metrics(cfg), summary=summary,
-        columns=[Column("success", "success", "{:.2f}"),
+        columns=[Column("success", "success", "{:.2f}", paper=True),
                  Column("jerk", "jerk (pos, /s^3)", "{:.3g}"),
                  Column("quat_norm_err", "max abs(norm(q)-1)", "{:.1e}"),
                  Column("env_steps", "env steps", "{}"), Column("seconds", "s", "{:.0f}")],
         labels={"task": cfg.task, "algo": cfg.algo, "action_space": actions},
         max_steps=ROBOSUITE_MAX_STEPS[cfg.task],
         num_envs=IMAGE_EVAL_ENVS if cfg.obs == "image" else None,
+        paper=PAPER.get((cfg.task, cfg.algo), {}) if cfg.obs == "state" else {},
+        notes=["paper: the paper's success rate at that setting (state observations, "
+               "robomimic's human demonstrations)."] if cfg.obs == "state" else [],
     )

@@ -71,3 +71,19 @@ def test_bad_groups_and_algorithms_are_named():
     cfg = compose("pusht", ["+eval.seed=3"])
     with pytest.raises(ValueError, match="eval.seed is not an evaluation setting"):
         common.eval_config(cfg)
+
+
+def test_a_script_takes_an_old_command_line(tmp_path):
+    import os
+    import subprocess
+    import sys
+
+    env = dict(os.environ, PYTHONPATH=str(ROOT), OMP_NUM_THREADS="1")
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "recipes" / "pusht" / "train.py"), "algo=dp", "horizon=8",
+         "t0_fraction=0.0", "optim.lr=1e-3", "--cfg", "job"],
+        capture_output=True, text=True, env=env, timeout=120, cwd=tmp_path)
+    assert done.returncode == 0, done.stderr[-2000:]
+    cfg = OmegaConf.create(done.stdout)
+    assert cfg.algo == "ddim" and cfg.model.horizon == 8 and cfg.optim.lr == 1e-3
+    assert "note: horizon=8 is now model.horizon=8" in done.stderr

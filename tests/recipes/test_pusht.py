@@ -89,6 +89,32 @@ def test_eval_script_reevaluates_a_checkpoint_with_its_own_seed_range(recipe, tm
     assert csv_text.startswith("# python recipes/pusht/eval.py")
 
 
+def test_a_checkpoint_of_an_earlier_version_evaluates_as_before(recipe, tmp_path):
+    # earlier versions stored flat settings (horizon, t0_fraction, ...) and algo: dp
+    run = recipe["train"].train(_cfg(["algo=ddim", f"out_dir={tmp_path / 'run'}", *TINY,
+                                      "eval.final_eval=false"]))
+    payload = torch.load(run / "best.pt", weights_only=False)
+    config = payload["config"]
+    flat = {**{k: v for k, v in config.items() if k not in ("model", "loss")},
+            **config["model"], **config["loss"], "algo": "dp"}
+    flat["preset"], flat["prior"] = flat.pop("unet_preset"), flat.pop("prior_sphere")
+    del flat["time_sampling"]
+    old = tmp_path / "old.pt"
+    torch.save({**payload, "config": flat}, old)
+    common = ["eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=10", "threads=1"]
+    (a,) = recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={run / 'best.pt'}", *common,
+                                                    f"eval.out={tmp_path / 'new'}"]))
+    (b,) = recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={old}", *common,
+                                                    f"eval.out={tmp_path / 'old'}"]))
+    assert a["algo"] == b["algo"] == "ddim" and b["per_seed"] == a["per_seed"]
+    assert b["score"] == a["score"] and b["jerk"] == a["jerk"]
+
+
+def test_algo_dp_names_its_new_name(recipe):
+    with pytest.raises(ValueError, match="algo=dp is now algo=ddim"):
+        recipe["utils"].check_config(_cfg(["algo=dp"]))
+
+
 def test_eval_script_names_a_missing_checkpoint(recipe, tmp_path):
     with pytest.raises(SystemExit, match="no such checkpoint"):
         recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={tmp_path / 'nope.pt'}"]))
