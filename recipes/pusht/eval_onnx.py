@@ -70,7 +70,8 @@ def write_report(out: Path, seeds: list[int], rows: list[dict], torch_row: dict,
     base = next((r for r in rows if r["precision"] == "fp32"), None)
     lines = [
         f"## Exported controllers in closed loop: {title}", "", f"Command: `{command}`", "",
-        f"Seeds {seeds[0]}-{seeds[-1]} ({n}); NFE {nfe}, T = 1 (reached 1); deterministic "
+        f"Seeds {seeds[0]}-{seeds[-1]} ({n}); NFE {nfe}, T = 1 (reached "
+        f"{torch_row['t_reached']:.2f}); deterministic "
         "(the prior's mode). Score: mean maximum coverage over the seeds.", "",
         "| policy | precision | NFE | T | score | change vs ONNX fp32 | seeds differing by > 0.05 "
         "| file (MB) | max abs diff vs PyTorch fp32 (normalised) | controller step median / max "
@@ -128,7 +129,7 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     result = evaluate(env_task.env_fn, model, lambda n, t: env_task.make_actor(model, n, t), nfe,
                       1.0, eval_config(task), env_task.metrics, seed=int(task.seed),
                       env_kwargs=env_task.env_kwargs)
-    torch_row = {"score": seed_mean(result.values["score"])}
+    torch_row = {"score": seed_mean(result.values["score"]), "t_reached": result.t_reached}
     print(f"  PyTorch (deterministic): score {torch_row['score']:.3f}")
     title = (f"Push-T {task.obs} {task.space}: {task.algo} ({task.model.unet_preset}, step "
              f"{extra.get('step')})")

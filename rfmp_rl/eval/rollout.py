@@ -217,13 +217,6 @@ def _rollout(env, actor, n: int, nfe: int, t_end: float, t_reached: float, seeds
                        [int(s) for s in steps.tolist()], seconds)
 
 
-def _env(env_fn, seeds: list[int], cfg: EvalConfig, noise_dim: int | None, seed: int,
-         env_kwargs: Mapping[str, Any]):
-    env, n = evaluation_env(env_fn, seeds, int(cfg.workers), noise_dim=noise_dim,
-                            noise_seed=int(seed), **dict(env_kwargs))
-    return env, n
-
-
 def _noise_dim(model, cfg: EvalConfig) -> int | None:
     """Prior noise per episode from its seed (random sampling); None for the prior's mode."""
     return None if cfg.sampling == "deterministic" else int(model.noise_dim)
@@ -267,7 +260,8 @@ def _sweep(env_fn, model, make_actor, settings, cfg: EvalConfig, metrics: Metric
         raise ValueError("eval.max_steps is not set and the task gives no episode limit")
     results: list[SeedResults | None] = [None] * len(settings)
     for chunk in _chunks(cfg.seed_list, cfg):  # one env per chunk, shared by every setting
-        env, n = _env(env_fn, chunk, cfg, _noise_dim(model, cfg), seed, env_kwargs or {})
+        env, n = evaluation_env(env_fn, chunk, int(cfg.workers), noise_dim=_noise_dim(model, cfg),
+                                noise_seed=int(seed), **dict(env_kwargs or {}))
         try:
             for k, (nfe, t_end) in enumerate(settings):
                 part = _rollout(env, make_actor(nfe, t_end), n, nfe, t_end,
