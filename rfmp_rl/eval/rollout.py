@@ -7,7 +7,10 @@ One function rolls a policy out over a list of seeds (`evaluate`), one sweeps it
   env of the task), wrapped by `rfmp_rl.eval.parallel.evaluation_env` (``ParallelEnv`` workers,
   per-seed prior noise);
 - ``metrics(rollout, steps)``: the task's per-seed figures from the rollout ``(N, L)`` and the
-  executed steps ``(N,)``, e.g. Push-T's maximum coverage or robosuite's success.
+  executed steps ``(N,)`` (the env's ``step_count``, else ``L``), e.g. Push-T's maximum
+  coverage, robosuite's success or a DTW distance to demonstrations.
+
+The env writes each episode's reset ``seed`` (read by `PriorNoise` for random sampling).
 
 Per-seed results depend on the seed alone: each episode's prior noise comes from its own seed
 (`PriorNoise`), so neither ``workers`` nor ``num_envs`` changes them.
@@ -208,7 +211,10 @@ def _rollout(env, actor, n: int, nfe: int, t_end: float, t_reached: float, seeds
                           break_when_all_done=True)
     out = flatten_workers(out, n)  # (N, L), seed order
     seconds = time.perf_counter() - start
-    steps = out["next", "step_count"][:, -1, 0]  # executed steps per episode
+    if ("next", "step_count") in out.keys(True):  # executed steps per episode
+        steps = out["next", "step_count"][:, -1].reshape(n)
+    else:  # an env without a StepCounter: every episode ran the whole rollout
+        steps = torch.full((n,), out.shape[1], dtype=torch.int64)
     values = {name: [float(v) for v in vals] for name, vals in metrics(out, steps).items()}
     for name, vals in values.items():
         if len(vals) != n:
