@@ -1,27 +1,140 @@
-"""Pieces every training recipe shares (imported by recipes/<task>/utils.py and train.py): the
-start of a run (runtime, resume, seeds, run folder), the call into the library's training
-engine (`rfmp_rl.training.Trainer`), checkpoint loading for evaluation, and the acting policy
-(FlowPolicy inside MultiStepActorWrapper) with the solver settings of each algorithm."""
+"""Pieces every training recipe shares (imported by recipes/<task>/utils.py, train.py and
+eval.py): the recipe config's groups mapped onto the library's dataclasses (``model`` ->
+`ModelConfig`, ``loss``, ``optim`` / ``train`` / ``logger`` -> `rfmp_rl.training`, ``eval`` ->
+`rfmp_rl.eval.EvalConfig`), the start of a run (runtime, resume, seeds, run folder), the call
+into the library's training engine, checkpoint loading for evaluation (configs of earlier
+versions upgraded), the acting policy, and the sweep of `rfmp_rl.eval` with a task's env and
+metrics (`TaskEval`)."""
 
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field, fields
 from pathlib import Path
+from typing import Any
 
 import torch
 from omegaconf import DictConfig, OmegaConf
+from omegaconf.errors import OmegaConfBaseException
+
+from rfmp_rl import keys
+from rfmp_rl.eval import Column, EvalConfig, plot_sweep, setting_label, sweep, write_tables
+from rfmp_rl.modules import ModelConfig, RecedingHorizonActor
+from rfmp_rl.modules import make_actor as make_receding_actor
+from rfmp_rl.objectives import LossConfig
+from rfmp_rl.solvers import SolverConfig
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
 
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.modules import RecedingHorizonActor  # noqa: E402
-from rfmp_rl.modules import make_actor as make_receding_actor  # noqa: E402
-from rfmp_rl.solvers import SolverConfig  # noqa: E402
+#: The algorithms, named as the library names them (`ModelConfig.algorithm`).
+ALGORITHMS = ("rfmp", "srfmp", "ddim")
 
-#: Recipe algorithm name -> ModelConfig algorithm.
-ALGOS = {"rfmp": "rfmp", "srfmp": "srfmp", "dp": "ddim"}
+#: Settings of earlier versions' flat recipe configs -> their place in the config groups.
+RENAMED = {
+    "preset": "model.unet_preset", "down_dims": "model.down_dims", "horizon": "model.horizon",
+    "action_steps": "model.action_steps", "obs_horizon": "model.obs_horizon",
+    "prior": "model.prior_sphere", "prior_scale": "model.prior_scale",
+    "prior_repeat": "model.prior_repeat", "lambda_x": "loss.lambda_x",
+    "lambda_tau": "loss.lambda_tau", "time_max": "loss.time_max",
+    "t0_fraction": "loss.t0_fraction",
+}
+#: Algorithm names of earlier versions -> the library's.
+RENAMED_ALGOS = {"dp": "ddim"}
+#: ModelConfig fields a task derives from its own settings (never set in ``model:``).
+TASK_MODEL_FIELDS = ("algorithm", "action_manifold", "obs_dim", "obs_manifold", "obs_keys",
+                     "cameras", "crop_shape")
+#: The training-time options of the loss (``loss:``).
+LOSS_FIELDS = ("time_sampling", "time_max", "t0_fraction", "lambda_x", "lambda_tau")
+
+
+# ----- configuration ---------------------------------------------------------------------------
+def upgrade_argv(argv: Sequence[str]) -> list[str]:
+    """A command line of earlier versions in today's names (``horizon=16`` ->
+    ``model.horizon=16``, ``algo=dp`` -> ``algo=ddim``); each rename is printed."""
+    out = []
+    for arg in argv:
+        key, eq, value = arg.partition("=")
+        prefix = key[: len(key) - len(key.lstrip("+~"))]
+        name = key[len(prefix):]
+        new = arg
+        if eq and name in RENAMED:
+            new = f"{prefix}{RENAMED[name]}={value}"
+        elif eq and name == "algo" and value in RENAMED_ALGOS:
+            new = f"{key}={RENAMED_ALGOS[value]}"
+        if new != arg:
+            print(f"note: {arg} is now {new}", file=sys.stderr)
+        out.append(new)
+    return out
+
+
+def upgrade_config(config: Mapping[str, Any]) -> dict:
+    """A stored recipe config (checkpoint or config.yaml) of earlier versions, whose model and
+    loss settings were flat (``horizon``, ``t0_fraction``, ``algo: dp``), in today's groups;
+    today's configs come back unchanged."""
+    config = dict(OmegaConf.to_container(config) if isinstance(config, DictConfig) else config)
+    for old, new in RENAMED.items():
+        if old in config:
+            group, name = new.split(".")
+            config.setdefault(group, {})
+            config[group] = {**config[group], name: config.pop(old)}
+    if config.get("algo") in RENAMED_ALGOS:
+        config["algo"] = RENAMED_ALGOS[config["algo"]]
+    if isinstance(config.get("logger"), str):  # logger=csv: the backend alone
+        config["logger"] = {"backend": config["logger"]}
+    return config
+
+
+def check_algo(cfg: DictConfig) -> None:
+    if cfg.algo in RENAMED_ALGOS:
+        raise ValueError(f"algo={cfg.algo} is now algo={RENAMED_ALGOS[cfg.algo]} (the library's "
+                         "name for the Diffusion Policy baseline)")
+    if cfg.algo not in ALGORITHMS:
+        raise ValueError(f"algo must be one of {ALGORITHMS}, got {cfg.algo!r}")
+
+
+def loss_config(cfg: DictConfig) -> LossConfig:
+    """The loss's training-time options from ``cfg.loss`` (`LOSS_FIELDS`); the flows' options
+    are left at their neutral values for the algorithms that do not use them (``time_max`` is
+    SRFMP's, ``t0_fraction`` the flows')."""
+    given = dict(cfg.loss)
+    unknown = sorted(set(given) - set(LOSS_FIELDS))
+    if unknown:
+        raise ValueError(f"loss.{unknown[0]} is not a loss setting; the settings are "
+                         f"{list(LOSS_FIELDS)}")
+    if cfg.algo != "srfmp":
+        given["time_max"] = 1.0
+    if cfg.algo == "ddim":
+        given["t0_fraction"] = 0.0
+    return LossConfig(**given)
+
+
+def model_config(cfg: DictConfig, **task) -> ModelConfig:
+    """`ModelConfig` from ``cfg.model`` (architecture), ``cfg.algo`` and the fields the task
+    derives (``task``: action manifold, observation keys and sizes, cameras, control rate), with
+    the loss's options (`loss_config`) that ModelConfig also carries."""
+    given = dict(cfg.model)
+    names = {f.name for f in fields(ModelConfig)}
+    for key in given:
+        if key not in names or key in TASK_MODEL_FIELDS:
+            raise ValueError(f"model.{key} is not an architecture setting of ModelConfig "
+                             f"(the task sets {list(TASK_MODEL_FIELDS)})")
+    if given.get("down_dims") is not None:
+        given["down_dims"] = list(given["down_dims"])
+    extra = {k: v for k, v in loss_config(cfg).to_dict().items() if k in names}
+    return ModelConfig(algorithm=cfg.algo, **given, **task, **extra)
+
+
+def eval_config(cfg: DictConfig) -> EvalConfig:
+    """`EvalConfig` from ``cfg.eval``."""
+    return EvalConfig.from_config(OmegaConf.to_container(cfg.eval, resolve=True))
+
+
+def fixed_settings(cfg: DictConfig, task_keys: Sequence[str]) -> list[str]:
+    """The settings that define a run (a resumed run may not change them): the task's choices,
+    every ``model`` and ``loss`` setting, and the seed."""
+    return [*task_keys, "algo", *(f"model.{k}" for k in cfg.model),
+            *(f"loss.{k}" for k in cfg.loss), "seed"]
 
 
 def resolve(path: str | Path) -> Path:
@@ -53,9 +166,9 @@ def split_stores(episodes: list, source, data_cfg: DictConfig, fmt: str):
 
 def load_for_eval(cfg: DictConfig, check_config) -> tuple:
     """``(model with EMA weights, task config, checkpoint extras, output folder)`` for eval.py:
-    the task comes from the checkpoint's stored training config, ``eval.*``, ``seed``,
-    ``threads``, ``device`` and ``compile`` from this command line (the policy runs on that
-    device in fp32)."""
+    the task comes from the checkpoint's stored training config (that of an earlier version
+    upgraded by `upgrade_config`), ``eval.*``, ``seed``, ``threads``, ``device`` and
+    ``compile`` from this command line (the policy runs on that device in fp32)."""
     from rfmp_rl.checkpoint import load_checkpoint
 
     if not cfg.checkpoint:
@@ -65,9 +178,16 @@ def load_for_eval(cfg: DictConfig, check_config) -> tuple:
         raise SystemExit(f"eval.py: no such checkpoint: {checkpoint}")
     torch.set_num_threads(int(cfg.threads))
     model, payload = load_checkpoint(checkpoint, use_ema=True)
+    stored = upgrade_config(payload["config"])
+    stored.pop("eval", None)  # the evaluation is this command line's
     runtime = {k: cfg[k] for k in ("device", "precision", "compile") if k in cfg}
-    task = OmegaConf.merge(OmegaConf.create(payload["config"]),
-                           {"eval": cfg.eval, "seed": cfg.seed, "threads": cfg.threads, **runtime})
+    try:
+        task = OmegaConf.merge(cfg, stored, {"seed": cfg.seed, "threads": cfg.threads,
+                                             **runtime})
+    except OmegaConfBaseException as err:  # a setting this version's recipe does not have
+        raise SystemExit(f"eval.py: {checkpoint} stores settings this recipe does not know "
+                         f"({err}); rename or remove them in the checkpoint's 'config' entry "
+                         "(torch.load, edit, torch.save) and evaluate again") from err
     check_config(task)
     from rfmp_rl.training import compile_networks, resolve_device
 
@@ -90,9 +210,7 @@ def check_runtime_config(cfg: DictConfig) -> None:
     backend = logger if isinstance(logger, str) else logger.get("backend", "csv")
     if backend not in LOGGER_BACKENDS:
         raise ValueError(f"logger.backend={backend!r}: use one of {LOGGER_BACKENDS}")
-    workers = cfg.get("eval", {}).get("workers", 1)
-    if not isinstance(workers, int) or workers < 1:
-        raise ValueError(f"eval.workers must be an integer >= 1, got {workers!r}")
+    eval_config(cfg)  # each bad evaluation setting named
 
 
 def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name: str = "run"):
@@ -109,6 +227,14 @@ def start_run(cfg: DictConfig, recipe: str, fixed, overrides=None, default_name:
     last = None
     if cfg.get("resume"):
         last = resume_checkpoint(cfg.resume, recipe)
+        stored = OmegaConf.to_container(OmegaConf.load(last.parent / "config.yaml"))
+        if upgrade_config(stored) != stored:
+            raise ValueError(
+                f"resume={cfg.resume}: {last.parent / 'config.yaml'} has the flat settings of an "
+                "earlier version; rename them there (" + ", ".join(
+                    f"{k} -> {v}" for k, v in RENAMED.items() if k in stored)
+                + (", algo: dp -> algo: ddim" if stored.get("algo") == "dp" else "")
+                + ") and resume again")
         cfg = resume_config(cfg, last, fixed, overrides)
     elif cfg.out_dir and (Path(cfg.out_dir) / "last.pt").exists():
         raise ValueError(f"out_dir={cfg.out_dir} already holds a run (last.pt): continue it with "
@@ -144,11 +270,10 @@ def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, ma
 
 
 def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,
-        camera_keys=None, rollout_score=None, loss=None, control_rate_hz=None):
+        camera_keys=None, rollout_score=None, control_rate_hz=None):
     """Train with the library's engine (`rfmp_rl.training.Trainer`) and the recipe's settings
-    (``optim``, ``train``, ``logger``), the loss options ``loss`` (`LossConfig`) and the env's
-    ``control_rate_hz`` (both stored in the checkpoints). ``config.yaml`` is written once the
-    engine has accepted the settings (a refused resume writes nothing)."""
+    (``optim``, ``train``, ``logger``). ``config.yaml`` is written once the engine has accepted
+    the settings (a refused resume writes nothing)."""
     from rfmp_rl.training import LoggerConfig, OptimConfig, TrainConfig, Trainer
 
     trainer = Trainer(
@@ -157,7 +282,7 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
         logger=LoggerConfig.from_config(cfg.get("logger", "csv")),
         config=OmegaConf.to_container(cfg, resolve=True), seed=int(cfg.seed),
         camera_keys=camera_keys, rollout_score=rollout_score, resume=resume,
-        solver=run_solver(cfg), loss=loss, control_rate_hz=control_rate_hz,
+        solver=run_solver(cfg), loss=loss_config(cfg), control_rate_hz=control_rate_hz,
     )
     if runtime.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
@@ -210,11 +335,6 @@ def run_solver(cfg: DictConfig) -> SolverConfig:
     return SolverConfig(nfe=int(nfe), t_end=float(cfg.train.get("select_t_end") or 1.0))
 
 
-def end_time(model, nfe: int, t_end: float) -> float:
-    """The flow time actually reached (SRFMP's first step is 1/lambda_x, so NFE=1 ends there)."""
-    return solver_config(model, nfe, t_end).reached(model.cfg.lambda_x)
-
-
 def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,
                camera_keys=None) -> RecedingHorizonActor:
     """FlowPolicy executing T_a of every T_p actions (receding horizon;
@@ -225,12 +345,66 @@ def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,
     return actor
 
 
-def sweep_settings(model, nfes, t_ends, time_table=()) -> list[tuple[int, float]]:
-    """(NFE, T) pairs: every NFE x T, plus ``time_table`` pairs; DDIM: every NFE at T = 1."""
-    if model.cfg.algorithm == "ddim":
-        return [(int(nfe), 1.0) for nfe in nfes]
-    settings = [(int(nfe), float(t)) for t in t_ends for nfe in nfes]
-    for nfe, t_end in time_table or []:
-        if (int(nfe), float(t_end)) not in settings:
-            settings.append((int(nfe), float(t_end)))
-    return settings
+# ----- evaluation ------------------------------------------------------------------------------
+@dataclass
+class TaskEval:
+    """What a task recipe gives the evaluation sweep (`rfmp_rl.eval.sweep`) for one config.
+
+    Args:
+        env_fn: picklable env factory ``env_fn(batch_size=[N], seeds=[...], **env_kwargs)``.
+        env_kwargs: the factory's other settings.
+        make_actor: ``(model, nfe, t_end) -> actor`` acting in the env.
+        metrics: ``metrics(rollout, steps)``, the per-seed figures.
+        summary: per-seed values -> the row's figures.
+        columns: the figures of the markdown table (the first three are printed as rows finish).
+        labels: ``{field: value}`` opening every row (algorithm, task variant).
+        max_steps: the episode limit when ``eval.max_steps`` is null.
+        num_envs: envs stepped side by side when ``eval.num_envs`` is null (None: every seed).
+        paper: ``{(NFE, T): value}``: the paper's figure for the column marked ``paper=True``.
+        plot: ``(field, axis label, y range)`` of eval.png, or None for no plot.
+        notes: lines printed under the table.
+    """
+
+    env_fn: Callable
+    env_kwargs: dict
+    make_actor: Callable
+    metrics: Callable
+    summary: Callable[[Mapping], dict]
+    columns: list[Column]
+    labels: dict
+    max_steps: int | None = None
+    num_envs: int | None = None
+    paper: dict = field(default_factory=dict)
+    plot: tuple | None = None
+    notes: list[str] = field(default_factory=list)
+
+
+def show(task: TaskEval):
+    """A progress callback printing a finished row's setting and first figures."""
+    def progress(row: dict) -> None:
+        figures = ", ".join(f"{c.header} {c.cell(row)}" for c in task.columns[:3])
+        print(f"  {setting_label(row)}: {figures} ({row['seconds']:.0f} s)")
+
+    return progress
+
+
+def run_sweep(model, cfg: DictConfig, task: TaskEval, progress=None) -> list[dict]:
+    """Every (NFE, T) of ``cfg.eval`` for ``model`` in the task's envs; one row each."""
+    settings = eval_config(cfg)
+    settings.num_envs = settings.num_envs or task.num_envs
+    return sweep(task.env_fn, model, lambda nfe, t_end: task.make_actor(model, nfe, t_end),
+                 settings, task.metrics, seed=int(cfg.seed), labels=task.labels,
+                 summary=task.summary, max_steps=task.max_steps, env_kwargs=task.env_kwargs,
+                 progress=progress)
+
+
+def report(rows: list[dict], out: Path, cfg: DictConfig, task: TaskEval, title: str,
+           command: str) -> Path:
+    """eval.md and eval.csv (and eval.png) of a sweep in ``out``; returns eval.md."""
+    path = write_tables(rows, out, title=title, command=command, columns=task.columns,
+                        labels=list(task.labels), paper=task.paper,
+                        time_table=cfg.eval.get("time_table") or (), notes=task.notes)
+    if task.plot is not None:
+        key, ylabel, ylim = task.plot
+        plot_sweep(rows, out / "eval.png", key, ylabel=ylabel, title=title, ylim=ylim)
+    return path

@@ -225,8 +225,9 @@ def ddp_overrides(setting: Setting, device: str, out_dir: Path, zarr: Path, pres
     steps = setting.steps
     return ["algo=srfmp", "obs=state", "space=euclidean", f"device={device}",
             f"precision={setting.precision}", f"compile={str(setting.compile).lower()}",
-            f"preset={preset}", f"train.steps={steps}", f"train.max_minutes={max_minutes}",
-            f"train.batch_size={setting.batch}", f"train.val_every={steps}",
+            f"model.unet_preset={preset}", f"train.steps={steps}",
+            f"train.max_minutes={max_minutes}", f"train.batch_size={setting.batch}",
+            f"train.val_every={steps}",
             # log_every beyond the run: with logger.backend=none, Trainer.fit's periodic
             # train-loss log calls log_scalar on a None logger
             "train.val_batches=1", f"train.log_every={10 * steps}",

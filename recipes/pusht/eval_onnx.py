@@ -26,19 +26,13 @@ from pathlib import Path
 import hydra
 import numpy as np
 from omegaconf import DictConfig, OmegaConf
-from utils import (  # noqa: I001
-    CONTROL_RATE_HZ,
-    check_config,
-    deploy_classes,
-    evaluate,
-    load_for_eval,
-    make_env,
-    make_replay_buffer,
-    make_stores,
-)
+from utils import CONTROL_RATE_HZ, check_config, eval_task, make_replay_buffer, make_stores
 
+from recipes.common import deploy_classes, eval_config, load_for_eval, upgrade_argv
 from rfmp_rl import keys
+from rfmp_rl.eval import evaluate, seed_mean
 from rfmp_rl.eval.controller import run_controller, split_fields
+from rfmp_rl.eval.parallel import evaluation_env
 from rfmp_rl.onnx_export import calibration_inputs, export_onnx
 
 
@@ -56,8 +50,10 @@ def run_onnx(path: Path, task: DictConfig, seeds: list[int]):
             observation[keys.PIXELS] = td[keys.PIXELS][0].permute(1, 2, 0).numpy()
         return observation
 
+    env_task = eval_task(task)
     return run_controller(
-        controller, lambda seed: make_env(task, [seed], int(task.eval.max_steps))[0], seeds,
+        controller, lambda seed: evaluation_env(env_task.env_fn, [seed],
+                                                **env_task.env_kwargs)[0], seeds,
         int(task.eval.max_steps), observe, outcome=lambda td: float(td["max_coverage"][0, 0]),
     )
 
@@ -74,7 +70,8 @@ def write_report(out: Path, seeds: list[int], rows: list[dict], torch_row: dict,
     base = next((r for r in rows if r["precision"] == "fp32"), None)
     lines = [
         f"## Exported controllers in closed loop: {title}", "", f"Command: `{command}`", "",
-        f"Seeds {seeds[0]}-{seeds[-1]} ({n}); NFE {nfe}, T = 1 (reached 1); deterministic "
+        f"Seeds {seeds[0]}-{seeds[-1]} ({n}); NFE {nfe}, T = 1 (reached "
+        f"{torch_row['t_reached']:.2f}); deterministic "
         "(the prior's mode). Score: mean maximum coverage over the seeds.", "",
         "| policy | precision | NFE | T | score | change vs ONNX fp32 | seeds differing by > 0.05 "
         "| file (MB) | max abs diff vs PyTorch fp32 (normalised) | controller step median / max "
@@ -129,9 +126,13 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
         print(f"  ONNX {precision}: score {rollouts.mean:.3f}")
         rows.append({"precision": precision, "nfe": nfe, "path": path, "report": report,
                      "rollouts": rollouts})
-    torch_row = evaluate(model, task, nfe, 1.0)
+    env_task = eval_task(task)
+    result = evaluate(env_task.env_fn, model, lambda n, t: env_task.make_actor(model, n, t), nfe,
+                      1.0, eval_config(task), env_task.metrics, seed=int(task.seed),
+                      env_kwargs=env_task.env_kwargs)
+    torch_row = {"score": seed_mean(result.values["score"]), "t_reached": result.t_reached}
     print(f"  PyTorch (deterministic): score {torch_row['score']:.3f}")
-    title = (f"Push-T {task.obs} {task.space}: {task.algo} ({task.preset}, step "
+    title = (f"Push-T {task.obs} {task.space}: {task.algo} ({task.model.unet_preset}, step "
              f"{extra.get('step')})")
     md = write_report(out, seeds, rows, torch_row, title, command)
     print(md.read_text())
@@ -145,4 +146,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
     main()

@@ -14,15 +14,18 @@ scores over three training seeds), each run's own score beside it.
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
 
 import yaml
 
-TASK_KEYS = ("algo", "obs", "space", "prior", "preset", "down_dims", "horizon", "action_steps",
-             "obs_horizon", "time_max", "t0_fraction", "seed", "threads")
+from recipes.common import upgrade_config
+from rfmp_rl.eval import read_table
+
+TASK_KEYS = ("algo", "obs", "space", "model.prior_sphere", "model.unet_preset",
+             "model.down_dims", "model.horizon", "model.action_steps", "model.obs_horizon",
+             "loss.time_max", "loss.t0_fraction", "seed", "threads")
 DEFAULTS = Path(__file__).with_name("config.yaml")
 NOT_TRAINING = ("out_dir", "checkpoint", "defaults", "hydra")  # not part of what a run learned
 
@@ -60,7 +63,9 @@ def processes(run: Path) -> int:
 def train_command(cfg: dict, defaults: dict | None = None, nproc: int = 1) -> str:
     """The training command that reproduces a run: ``algo obs space`` and every other setting
     that differs from the recipe's ``config.yaml`` (batch size, evaluation grid, ...); a run of
-    several processes starts with its ``torchrun`` launch."""
+    several processes starts with its ``torchrun`` launch (the settings of earlier versions in
+    today's names, `upgrade_config`)."""
+    cfg = upgrade_config(cfg)
     if defaults is None:
         defaults = yaml.safe_load(DEFAULTS.read_text())
     base = _leaves({k: v for k, v in defaults.items() if k not in NOT_TRAINING})
@@ -74,13 +79,15 @@ def train_command(cfg: dict, defaults: dict | None = None, nproc: int = 1) -> st
 
 def _name(cfg: dict) -> str:
     """A run's row label: what it learned and how, without its seed."""
+    model, loss = cfg.get("model", {}), cfg.get("loss", {})
     name = f"{cfg['algo']} {cfg['obs']} {cfg['space']}" + (
-        f" ({cfg['prior']} prior)" if cfg["space"] == "sphere" and cfg["algo"] != "dp" else "")
-    if cfg["algo"] == "srfmp" and float(cfg.get("time_max", 1.0)) != 1.0:
-        name += f", trained on t in [0, {cfg['time_max']:g}]"
-    if float(cfg.get("t0_fraction", 0.0)):
-        name += f", {cfg['t0_fraction']:g} of training times at t = 0"
-    if not cfg.get("prior_repeat", True):
+        f" ({model.get('prior_sphere', 'uniform')} prior)"
+        if cfg["space"] == "sphere" and cfg["algo"] != "ddim" else "")
+    if cfg["algo"] == "srfmp" and float(loss.get("time_max", 1.0)) != 1.0:
+        name += f", trained on t in [0, {loss['time_max']:g}]"
+    if float(loss.get("t0_fraction", 0.0)):
+        name += f", {loss['t0_fraction']:g} of training times at t = 0"
+    if not model.get("prior_repeat", True):
         name += ", independent prior per chunk step"
     if cfg["train"].get("select_by") == "rollout":
         name += ", best.pt by rollout score"
@@ -104,7 +111,8 @@ def main(argv: list[str] | None = None) -> str:
     argv = sys.argv[1:] if argv is None else argv
     runs = []
     for run in args.runs:
-        cfg = yaml.safe_load(_read(run / "config.yaml", "the run's configuration"))
+        cfg = upgrade_config(yaml.safe_load(_read(run / "config.yaml",
+                                                  "the run's configuration")))
         runs.append((run, cfg, _name(cfg)))
     names = [name for _, _, name in runs]
     defaults = yaml.safe_load(DEFAULTS.read_text())
@@ -122,8 +130,8 @@ def main(argv: list[str] | None = None) -> str:
                       f"NFE {cfg['train']['select_nfe']}, T={cfg['train']['select_t_end']:g})")
         else:
             chosen = f"best validation loss {best['val']:.4f}"
-        table = _read(run / "eval" / "eval.csv", "eval.py's table")
-        rows = list(csv.DictReader(table.splitlines()))
+        _read(run / "eval" / "eval.csv", "eval.py's table")
+        rows = read_table(run / "eval" / "eval.csv")
         group = train_command({k: v for k, v in cfg.items() if k != "seed"}, defaults)
         if names.count(name) > 1:  # one label, several runs: their seeds, else their folders
             name += f", seed {cfg['seed']}"
@@ -143,7 +151,8 @@ def main(argv: list[str] | None = None) -> str:
             f"{last['minutes']:.1f} min {where} ({chosen} at step {best['step']}, "
             f"{best['minutes']:.1f} min; that checkpoint is evaluated).",
             "",
-            "Task settings: " + ", ".join(f"{k}={cfg.get(k)}" for k in TASK_KEYS if k in cfg),
+            "Task settings: " + ", ".join(f"{k}={_leaves(cfg)[k]}" for k in TASK_KEYS
+                                          if k in _leaves(cfg)),
             "",
             _read(run / "eval" / "eval.md", "eval.py's table").replace("## ", "### ", 1),
         ]

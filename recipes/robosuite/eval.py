@@ -5,8 +5,9 @@ and, for pose actions, how far the executed quaternions are from unit norm.
     python recipes/robosuite/eval.py checkpoint=runs/robosuite/<run>/best.pt
     python recipes/robosuite/eval.py checkpoint=... eval.seeds=10 eval.nfes=[1,3]
 
-The task settings come from the checkpoint's stored config, the ``eval.*`` fields from the
-command line. Writes eval.csv and eval.md to ``eval.out`` (default ``<checkpoint folder>/eval``).
+The task settings come from the checkpoint's stored config (that of an earlier version is
+upgraded), the ``eval.*`` fields from the command line. Writes eval.csv and eval.md to
+``eval.out`` (default ``<checkpoint folder>/eval``).
 """
 
 from __future__ import annotations
@@ -15,22 +16,21 @@ import sys
 
 import hydra
 from omegaconf import DictConfig
-from utils import check_config, load_for_eval, sweep, write_tables  # noqa: I001
+from utils import check_config, eval_task
+
+from recipes.common import load_for_eval, report, run_sweep, show, upgrade_argv
 
 
 def evaluate_checkpoint(cfg: DictConfig) -> list[dict]:
     """Run the sweep on ``cfg.checkpoint``; returns the table rows."""
-    model, task, extra, out = load_for_eval(cfg, check_config)
-
-    def show(row):
-        print(f"  NFE={row['nfe']:<2} T={row['t_end']:.1f}: success {row['success']:.2f}, "
-              f"jerk {row['jerk']:.3g} ({row['seconds']:.0f} s)")
-
-    rows = sweep(model, task, progress=show)
-    title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} ({task.preset}, step "
-             f"{extra.get('step')}, {extra.get('train_minutes', float('nan')):.0f} min training)")
+    model, task_cfg, extra, out = load_for_eval(cfg, check_config)
+    task = eval_task(task_cfg)
+    rows = run_sweep(model, task_cfg, task, progress=show(task))
+    title = (f"{task_cfg.task} {task_cfg.obs} {task_cfg.action_space}: {task_cfg.algo} "
+             f"({task_cfg.model.unet_preset}, step {extra.get('step')}, "
+             f"{extra.get('train_minutes', float('nan')):.0f} min training)")
     command = "python recipes/robosuite/eval.py " + " ".join(sys.argv[1:])
-    print(write_tables(rows, out, title, command).read_text())
+    print(report(rows, out, task_cfg, task, title, command).read_text())
     return rows
 
 
@@ -40,4 +40,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
     main()

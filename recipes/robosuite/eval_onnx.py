@@ -27,17 +27,12 @@ from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig, OmegaConf
-from utils import (  # noqa: I001
-    CONTROL_RATE_HZ,
-    check_config,
-    deploy_classes,
-    load_for_eval,
-    make_env,
-    sweep,
-)
+from utils import CONTROL_RATE_HZ, check_config, eval_task
 
+from recipes.common import deploy_classes, load_for_eval, run_sweep, upgrade_argv
 from rfmp_rl.envs.robosuite import ROBOSUITE_MAX_STEPS
 from rfmp_rl.eval.controller import run_controller
+from rfmp_rl.eval.parallel import evaluation_env
 from rfmp_rl.onnx_export import export_onnx
 
 
@@ -56,8 +51,10 @@ def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> 
         observation.update({c: td[c][0].permute(1, 2, 0).numpy() for c in cameras})
         return observation
 
+    env_task = eval_task(task)
     rollouts = run_controller(
-        controller, lambda seed: make_env(task, [seed])[0], seeds,
+        controller, lambda seed: evaluation_env(env_task.env_fn, [seed],
+                                                **env_task.env_kwargs)[0], seeds,
         int(task.eval.max_steps or ROBOSUITE_MAX_STEPS[task.task]), observe,
         outcome=lambda td: int(td["success"][0, 0]),
     )
@@ -133,7 +130,8 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     ref = OmegaConf.merge(task, {"eval": {"sampling": "deterministic", "nfes": [nfe],
                                           "t_ends": [t_end], "time_table": []}})
     seeds = list(range(int(ref.eval.seed_start), int(ref.eval.seed_start) + int(ref.eval.seeds)))
-    (torch_row,) = sweep(model, ref)
+    (row,) = run_sweep(model, ref, eval_task(ref))
+    torch_row = {**row, "per_seed": [int(v) for v in row["per_seed"]["success"]]}
     print(f"  PyTorch NFE={nfe} (deterministic): success {torch_row['success']:.2f} "
           f"({torch_row['seconds']:.0f} s)")
     start = time.perf_counter()
@@ -142,8 +140,9 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     print(f"  ONNX    NFE={nfe} (zero noise):    success {onnx_rate:.2f} "
           f"({time.perf_counter() - start:.0f} s)")
 
-    title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} ({task.preset}, step "
-             f"{extra.get('step')}, {extra.get('train_minutes', float('nan')):.0f} min training)")
+    title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} "
+             f"({task.model.unet_preset}, step {extra.get('step')}, "
+             f"{extra.get('train_minutes', float('nan')):.0f} min training)")
     differ = [s for s, a, b in zip(seeds, torch_row["per_seed"], onnx["per_seed"], strict=True)
               if a != b]
     md = write_report(out, seeds, torch_row, onnx, differ, report, title, command)
@@ -162,4 +161,5 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
+    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
     main()

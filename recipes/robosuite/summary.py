@@ -5,20 +5,23 @@
 
 Each run folder needs ``config.yaml`` and ``history.json`` (written by ``train.py``) and
 ``eval/eval.csv`` (its final evaluation, or ``eval.py``'s); the training column is read from
-them: steps, minutes, learning rate and ``t0_fraction``.
+them: steps, minutes, learning rate and ``loss.t0_fraction`` (the flat
+configs of earlier versions are read too).
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import sys
 from pathlib import Path
 
 import yaml
 
-ALGO_NAMES = {"srfmp": "SRFMP", "rfmp": "RFMP", "dp": "DDIM"}
+from recipes.common import upgrade_config
+from rfmp_rl.eval import read_table
+
+ALGO_NAMES = {"srfmp": "SRFMP", "rfmp": "RFMP", "ddim": "DDIM"}
 
 
 def _read(run: Path) -> tuple[dict, list[dict], list[dict]]:
@@ -26,10 +29,9 @@ def _read(run: Path) -> tuple[dict, list[dict], list[dict]]:
     missing = [str(p) for p in files.values() if not p.is_file()]
     if missing:
         raise FileNotFoundError(f"run {run}: missing {', '.join(missing)}")
-    cfg = yaml.safe_load(files["config.yaml"].read_text())
+    cfg = upgrade_config(yaml.safe_load(files["config.yaml"].read_text()))
     history = json.loads(files["history.json"].read_text())
-    with open(files["eval/eval.csv"]) as f:
-        rows = list(csv.DictReader(f))
+    rows = read_table(files["eval/eval.csv"])
     if not history or not rows:
         raise ValueError(f"run {run}: empty history.json or eval/eval.csv")
     return cfg, history, rows
@@ -44,8 +46,8 @@ def summary(runs: list[Path]) -> str:
         success = {int(r["nfe"]): float(r["success"]) for r in rows if float(r["t_end"]) == 1.0}
         last = history[-1]
         training = f"{last['step']} steps, {last['minutes']:.0f} min, lr {cfg['optim']['lr']:g}"
-        if cfg.get("t0_fraction"):
-            training += f", t0_fraction {cfg['t0_fraction']:g}"
+        if cfg.get("loss", {}).get("t0_fraction"):
+            training += f", t0_fraction {cfg['loss']['t0_fraction']:g}"
         actions = cfg["action_space"]
         if actions == "abs_pose":
             actions += f"/{cfg['geometry']}"

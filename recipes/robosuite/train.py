@@ -7,47 +7,31 @@ checkpoint over 50 seeds at NFE {1, 2, 3, 5, 10}.
     python recipes/robosuite/train.py task=Lift action_space=abs_pose geometry=euclidean
 
 The demonstrations default to ``data/robosuite/<task>_<action_space>.hdf5``, written by the
-scripted expert on first use (``python -m rfmp_rl.envs.robosuite_experts`` does it alone).
-Writes ``runs/robosuite/<task>_<algo>_<obs>_<action_space>_<time>/``: ``best.pt``, ``last.pt``,
-``logs/``, ``history.json`` and ``eval/`` (eval.csv, eval.md).
+scripted expert on first use. Writes ``runs/robosuite/<task>_<algo>_<obs>_<action_space>_<time>/``:
+``best.pt``, ``last.pt``, ``logs/``, ``history.json`` and ``eval/`` (eval.csv, eval.md).
 """
 
 from __future__ import annotations
 
+import sys
 from datetime import datetime
 from pathlib import Path
 
 import hydra
 from omegaconf import DictConfig
-from utils import (  # noqa: I001
+from utils import (
     CONTROL_RATE_HZ,
-    build_training,
+    TASK_KEYS,
     check_config,
     ensure_demos,
-    eval_model,
-    exit_code,
-    fit,
-    make_loss_config,
+    eval_task,
     make_model,
     make_replay_buffer,
     make_stores,
-    start_run,
-    sweep,
-    write_tables,
 )
 
+from recipes import common
 from rfmp_rl.training import FitResult
-
-
-def show(row: dict) -> None:
-    print(f"  NFE={row['nfe']:<2} T={row['t_end']:.1f}: success {row['success']:.2f}, "
-          f"jerk {row['jerk']:.3g} ({row['seconds']:.0f} s)")
-
-
-#: Settings that define a run: a resumed run may not change them.
-FIXED = ("task", "algo", "obs", "action_space", "geometry", "prior", "prior_scale",
-         "prior_repeat", "preset", "down_dims", "horizon", "action_steps", "obs_horizon",
-         "lambda_x", "lambda_tau", "time_max", "t0_fraction", "seed")
 
 
 def train(cfg: DictConfig, overrides=None) -> Path:
@@ -60,27 +44,26 @@ def train(cfg: DictConfig, overrides=None) -> Path:
 def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
     """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
     check_config(cfg)
-    stamp = datetime.now().strftime("%Y%m%d_%H%M%S")
-    cfg, runtime, run_dir, last = start_run(
-        cfg, "robosuite", FIXED, overrides,
-        f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}_{stamp}")
+    name = f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}_{datetime.now():%Y%m%d_%H%M%S}"
+    fixed = common.fixed_settings(cfg, TASK_KEYS)
+    cfg, runtime, run_dir, last = common.start_run(cfg, "robosuite", fixed, overrides, name)
     check_config(cfg)
     if runtime.is_main:
         ensure_demos(cfg)  # the scripted expert writes the file once, on rank 0
     runtime.barrier()
     what = f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space})"
-    model, rb, val_rb = build_training(cfg, runtime, make_stores, make_replay_buffer,
-                                       make_model, what)
-    result = fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last,
-                 loss=make_loss_config(cfg), control_rate_hz=CONTROL_RATE_HZ)
+    model, rb, val_rb = common.build_training(cfg, runtime, make_stores, make_replay_buffer,
+                                              make_model, what)
+    result = common.fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last,
+                        control_rate_hz=CONTROL_RATE_HZ)
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
-        best_model, meta = eval_model(run_dir / "best.pt", cfg, runtime)
-        rows = sweep(best_model, cfg, progress=show)
-        title = (f"{cfg.task} {cfg.obs} {cfg.action_space}: {cfg.algo} ({cfg.preset}, best of "
-                 f"{result.steps} steps at step {meta['extra'].get('step')}, "
-                 f"{result.minutes:.0f} min)")
+        best, meta = common.eval_model(run_dir / "best.pt", cfg, runtime)
+        task = eval_task(cfg)
+        rows = common.run_sweep(best, cfg, task, progress=common.show(task))
+        title = (f"{what}: {cfg.model.unet_preset}, best of {result.steps} steps at step "
+                 f"{meta['extra'].get('step')}, {result.minutes:.0f} min")
         command = f"python recipes/robosuite/eval.py checkpoint={run_dir / 'best.pt'}"
-        print(write_tables(rows, run_dir / "eval", title, command).read_text())
+        print(common.report(rows, run_dir / "eval", cfg, task, title, command).read_text())
     if runtime.is_main:
         print(f"run folder: {run_dir}")
     runtime.shutdown()
@@ -92,8 +75,9 @@ def main(cfg: DictConfig) -> None:
     from hydra.core.hydra_config import HydraConfig
 
     _, result = run(cfg, overrides=list(HydraConfig.get().overrides.task))
-    raise SystemExit(exit_code(result))
+    raise SystemExit(common.exit_code(result))
 
 
 if __name__ == "__main__":
+    sys.argv = common.upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
     main()

@@ -1,44 +1,31 @@
-"""Factories for the robosuite recipes: data (robomimic HDF5 from the scripted experts), model,
-env, actor and the NFE sweep with success rate, jerk and on-manifold error."""
+"""The robosuite tasks for the recipes: the data (robomimic HDF5 from the scripted experts as
+demonstration stores and replay buffers), the model's task-derived settings, the evaluation env
+and actor, and the task's figures (success, jerk, distance of the executed quaternions from unit
+norm)."""
 
 from __future__ import annotations
 
-import csv
 import functools
-import math
-import sys
-import time
 from pathlib import Path
 
 import torch
 from omegaconf import DictConfig
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # recipes/: the shared pieces
-
-from common import (  # noqa: E402
-    ALGOS,
+from recipes.common import (
     ROOT,
-    build_training,
+    TaskEval,
+    check_algo,
     check_runtime_config,
-    deploy_classes,
-    end_time,
-    eval_model,
-    exit_code,
-    fit,
-    load_for_eval,
     make_actor,
+    model_config,
     resolve,
     split_stores,
-    start_run,
-    sweep_settings,
 )
-
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.data import DemonstrationStore, read_robomimic  # noqa: E402
-from rfmp_rl.envs.robosuite import (  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.data import DemonstrationStore, read_robomimic
+from rfmp_rl.envs.robosuite import (
     ROBOSUITE_CONTROL_FREQ,
     ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
@@ -47,25 +34,40 @@ from rfmp_rl.envs.robosuite import (  # noqa: E402
     low_dim_key_dims,
     make_robosuite_env,
 )
-from rfmp_rl.eval.metrics import jerk  # noqa: E402
-from rfmp_rl.eval.parallel import FlatBatch, evaluation_env, flatten_workers  # noqa: E402
-from rfmp_rl.manifolds.quaternion import hemisphere_continuous  # noqa: E402
-from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import LossConfig  # noqa: E402
-
-__all__ = ["ROOT", "build_training", "fit", "end_time", "load_for_eval", "start_run",
-           "eval_model", "exit_code", "deploy_classes"]
+from rfmp_rl.eval import Column, seed_max, seed_mean
+from rfmp_rl.eval.metrics import jerk
+from rfmp_rl.manifolds.quaternion import hemisphere_continuous
+from rfmp_rl.modules import ModelConfig, build_model
 
 CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
-CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in checkpoints; the ONNX metadata's
+CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in the checkpoints and ONNX metadata
+#: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
+TASK_KEYS = ("task", "obs", "action_space", "geometry")
+
+#: The paper's success rates on the state-based robomimic tasks (its table "Success rate as a
+#: function of different NFE values on the state-based Robomimic tasks"), at T = 1.
+_PAPER_NFES = (1, 2, 3, 5, 10)
+PAPER = {
+    (task, algo): {(nfe, 1.0): v for nfe, v in zip(_PAPER_NFES, values, strict=True)}
+    for (task, algo), values in {
+        ("Lift", "rfmp"): (0.992, 0.992, 0.992, 0.992, 0.992),
+        ("Lift", "srfmp"): (1.000, 0.992, 0.992, 0.996, 1.000),
+        ("Lift", "ddim"): (0.008, 0.756, 0.948, 0.956, 0.976),
+        ("PickPlaceCan", "rfmp"): (0.976, 0.996, 0.996, 0.996, 0.996),
+        ("PickPlaceCan", "srfmp"): (0.980, 0.980, 0.996, 0.992, 0.968),
+        ("PickPlaceCan", "ddim"): (0.004, 0.340, 0.836, 0.924, 0.908),
+        ("NutAssemblySquare", "rfmp"): (0.792, 0.848, 0.920, 0.896, 0.912),
+        ("NutAssemblySquare", "srfmp"): (0.776, 0.800, 0.828, 0.824, 0.848),
+        ("NutAssemblySquare", "ddim"): (0.012, 0.384, 0.628, 0.672, 0.684),
+    }.items()
+}
 
 
 def check_config(cfg: DictConfig) -> None:
     if cfg.task not in ROBOSUITE_TASKS:
         raise ValueError(f"task must be one of {ROBOSUITE_TASKS}, got {cfg.task!r}")
-    if cfg.algo not in ALGOS:
-        raise ValueError(f"algo must be one of {sorted(ALGOS)}, got {cfg.algo!r}")
+    check_algo(cfg)
     if cfg.obs not in ("state", "image"):
         raise ValueError(f"obs must be 'state' or 'image', got {cfg.obs!r}")
     if cfg.action_space not in ("delta", "abs_pose"):
@@ -152,10 +154,10 @@ def make_stores(cfg: DictConfig) -> tuple[DemonstrationStore, DemonstrationStore
 
 def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig, seed: int):
     return store.replay_buffer(
-        cfg.horizon,
+        cfg.model.horizon,
         observation_keys=[keys.OBSERVATION],
         camera_keys=list(CAMERAS) if cfg.obs == "image" else [],
-        obs_horizon=cfg.obs_horizon,
+        obs_horizon=cfg.model.obs_horizon,
         batch_size=cfg.train.batch_size,
         generator=torch.Generator().manual_seed(seed),
     )
@@ -163,6 +165,8 @@ def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig, seed: int):
 
 # ----- model -----------------------------------------------------------------------------------
 def make_model_config(cfg: DictConfig) -> ModelConfig:
+    """``cfg.model`` with what the task fixes: the action manifold (robomimic's delta R^7, or the
+    pose R^3 x S^3 x R^1, or R^8 for the Euclidean baseline), the observation keys and cameras."""
     obs_keys = low_dim_sizes(cfg)
     obs_dim = sum(d for _, d in obs_keys)
     if not pose_action(cfg):
@@ -171,35 +175,14 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         action_manifold = "R3 x S3 x R1"
     else:
         action_manifold = "R8"
-    algorithm = ALGOS[cfg.algo]
-    return ModelConfig(
-        algorithm=algorithm,
+    return model_config(
+        cfg,
         action_manifold=action_manifold,
-        horizon=cfg.horizon,
-        action_steps=cfg.action_steps,
-        obs_horizon=cfg.obs_horizon,
         obs_dim=obs_dim,
         obs_manifold=f"R3 x S3 x R{obs_dim - 7}",  # the eef quaternion is left unnormalised
         obs_keys=obs_keys,
         cameras={cam: [3, 84, 84] for cam in CAMERAS} if cfg.obs == "image" else {},
         crop_shape=[76, 76] if cfg.obs == "image" else None,
-        unet_preset=cfg.preset,
-        down_dims=list(cfg.down_dims) if cfg.down_dims else None,
-        prior_sphere=cfg.prior,
-        prior_scale=cfg.prior_scale,
-        prior_repeat=cfg.prior_repeat,
-        lambda_x=cfg.lambda_x,
-    )
-
-
-def make_loss_config(cfg: DictConfig) -> LossConfig:
-    """The loss's training-time options (`rfmp_rl.objectives.LossConfig`) from the flat keys."""
-    algorithm = ALGOS[cfg.algo]
-    return LossConfig(
-        time_max=cfg.time_max if algorithm == "srfmp" else 1.0,
-        t0_fraction=cfg.t0_fraction if algorithm != "ddim" else 0.0,
-        lambda_x=cfg.lambda_x,
-        lambda_tau=cfg.lambda_tau,
     )
 
 
@@ -210,7 +193,7 @@ def make_model(cfg: DictConfig, store: DemonstrationStore):
     return model
 
 
-# ----- acting ----------------------------------------------------------------------------------
+# ----- evaluation ------------------------------------------------------------------------------
 def _normalise_quaternion(action: torch.Tensor) -> torch.Tensor:
     q = action[..., 3:7]
     return torch.cat([action[..., :3], q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12),
@@ -229,146 +212,58 @@ def make_env_actor(model, cfg: DictConfig, nfe: int, t_end: float):
     return actor
 
 
-def make_env(cfg: DictConfig, seeds: list[int], noise_dim: int | None = None):
-    """The evaluation env over ``seeds``: ``(env, number of seeds)``, stepped by ``eval.workers``
-    processes (TorchRL ``ParallelEnv``) when more than one; with ``noise_dim`` each episode's
-    prior noise comes from its own seed (`rfmp_rl.eval.parallel.PriorNoise`)."""
-    return evaluation_env(
-        make_robosuite_env, seeds, int(cfg.eval.get("workers", 1)), noise_dim=noise_dim,
-        noise_seed=int(cfg.seed), task=cfg.task, obs_horizon=cfg.obs_horizon,
-        action_space=cfg.action_space,
-        cameras=tuple(c.removesuffix("_image") for c in CAMERAS) if cfg.obs == "image" else (),
-        low_dim_keys=low_dim_keys(cfg), max_steps=cfg.eval.max_steps,
+def env_kwargs(cfg: DictConfig) -> dict:
+    """`make_robosuite_env`'s settings (besides the batch and the seeds)."""
+    return {"task": cfg.task, "obs_horizon": cfg.model.obs_horizon,
+            "action_space": cfg.action_space,
+            "cameras": tuple(c.removesuffix("_image") for c in CAMERAS)
+            if cfg.obs == "image" else (),
+            "low_dim_keys": low_dim_keys(cfg), "max_steps": cfg.eval.max_steps}
+
+
+#: Rendering envs stepped at once by default (``eval.num_envs``): each rendering robosuite env
+#: holds ~0.4 GB and the rollout keeps every frame, so 50 at once hold over 20 GB.
+IMAGE_EVAL_ENVS = 10
+
+
+def metrics(cfg: DictConfig):
+    """Per episode: success (0/1), the jerk of the executed positions and, for pose actions,
+    the largest distance of the executed (raw) quaternions from unit norm."""
+    def per_seed(rollout, steps) -> dict:
+        raw = rollout.get("raw_action", rollout[keys.ACTION])
+        jerks, errors = [], []
+        for i in range(raw.shape[0]):
+            executed = raw[i, : int(steps[i])].double()
+            jerks.append(float(jerk(executed[:, :3], CONTROL_DT))  # position part
+                         if executed.shape[0] >= 4 else float("nan"))
+            errors.append(float((executed[:, 3:7].norm(dim=-1) - 1).abs().max())
+                          if pose_action(cfg) else float("nan"))
+        return {"success": rollout["next", "success"][:, -1, 0].float().tolist(),
+                "jerk": jerks, "quat_norm_err": errors}
+
+    return per_seed
+
+
+def summary(values) -> dict:
+    return {"success": seed_mean(values["success"]), "jerk": seed_mean(values["jerk"]),
+            "quat_norm_err": seed_max(values["quat_norm_err"])}
+
+
+def eval_task(cfg: DictConfig) -> TaskEval:
+    """The robosuite evaluation of ``cfg``: env, actor, figures and table."""
+    actions = cfg.action_space + ("" if not pose_action(cfg) else f"/{cfg.geometry}")
+    return TaskEval(
+        env_fn=make_robosuite_env, env_kwargs=env_kwargs(cfg),
+        make_actor=lambda model, nfe, t_end: make_env_actor(model, cfg, nfe, t_end),
+        metrics=metrics(cfg), summary=summary,
+        columns=[Column("success", "success", "{:.2f}", paper=True),
+                 Column("jerk", "jerk (pos, /s^3)", "{:.3g}"),
+                 Column("quat_norm_err", "max abs(norm(q)-1)", "{:.1e}"),
+                 Column("env_steps", "env steps", "{}"), Column("seconds", "s", "{:.0f}")],
+        labels={"task": cfg.task, "algo": cfg.algo, "action_space": actions},
+        max_steps=ROBOSUITE_MAX_STEPS[cfg.task],
+        num_envs=IMAGE_EVAL_ENVS if cfg.obs == "image" else None,
+        paper=PAPER.get((cfg.task, cfg.algo), {}) if cfg.obs == "state" else {},
+        notes=["paper: the paper's success rate at that setting (state observations, "
+               "robomimic's human demonstrations)."] if cfg.obs == "state" else [],
     )
-
-
-IMAGE_EVAL_ENVS = 10  # rendering envs stepped at once by default: 50 held over 20 GB here
-
-
-def eval_num_envs(cfg: DictConfig) -> int:
-    """Envs stepped side by side: ``eval.num_envs``, else every seed at once for state policies
-    and `IMAGE_EVAL_ENVS` for image policies (each rendering robosuite env holds ~0.4 GB and the
-    rollout keeps every frame)."""
-    n = cfg.eval.get("num_envs")
-    if n is None:
-        n = IMAGE_EVAL_ENVS if cfg.obs == "image" else int(cfg.eval.seeds)
-    if int(n) < 1:
-        raise ValueError(f"eval.num_envs must be >= 1, got {n}")
-    return int(n)
-
-
-def _noise_dim(model, cfg: DictConfig) -> int | None:
-    """Prior noise per episode from its seed (random sampling); None for the prior's mode."""
-    return None if cfg.eval.sampling == "deterministic" else int(model.noise_dim)
-
-
-@torch.no_grad()
-def evaluate(model, cfg: DictConfig, nfe: int, t_end: float, env, seeds: list[int]) -> dict:
-    """One closed-loop evaluation over ``seeds`` in ``env`` (from `make_env`, reset here); the
-    row's ``per_seed`` lists each seed's success (0/1, in seed order). Each episode's prior noise
-    comes from its own seed, so the row does not depend on ``eval.workers`` or
-    ``eval.num_envs``."""
-    actor = FlatBatch(make_env_actor(model, cfg, nfe, t_end))  # workers x envs -> one batch
-    mode = (ExplorationType.DETERMINISTIC if cfg.eval.sampling == "deterministic"
-            else ExplorationType.RANDOM)
-    max_steps = int(cfg.eval.max_steps or ROBOSUITE_MAX_STEPS[cfg.task])
-    torch.manual_seed(int(cfg.seed))
-    start = time.perf_counter()
-    with set_exploration_type(mode):
-        out = env.rollout(max_steps, actor, break_when_any_done=False, break_when_all_done=True)
-    out = flatten_workers(out, len(seeds))
-    seconds = time.perf_counter() - start
-    success = out["next", "success"][:, -1, 0].float()
-    steps = out["next", "step_count"][:, -1, 0]
-    raw = out.get("raw_action", out[keys.ACTION])
-    jerks, manifold_err = [], 0.0
-    for i in range(raw.shape[0]):
-        executed = raw[i, : int(steps[i])].double()
-        if executed.shape[0] >= 4:
-            jerks.append(float(jerk(executed[:, :3], CONTROL_DT)))  # position part (m or units)
-        if pose_action(cfg):
-            manifold_err = max(manifold_err, float((executed[:, 3:7].norm(dim=-1) - 1).abs().max()))
-    del out
-    return {
-        "task": cfg.task,
-        "algo": cfg.algo,
-        "action_space": cfg.action_space + ("" if not pose_action(cfg) else f"/{cfg.geometry}"),
-        "nfe": nfe,
-        "t_end": t_end,
-        "t_reached": end_time(model, nfe, t_end),
-        "success": float(success.mean()),
-        "jerk": float(torch.tensor(jerks).mean()) if jerks else float("nan"),
-        "quat_norm_err": manifold_err if pose_action(cfg) else float("nan"),
-        "env_steps": int(steps.sum()),
-        "seconds": seconds,
-        "seeds": f"{seeds[0]}-{seeds[-1]}",
-        "per_seed": [int(v) for v in success.tolist()],
-        "per_seed_jerk": jerks,
-    }
-
-
-def _merge(parts: list[dict]) -> dict:
-    """One row from the rows of consecutive seed chunks (same NFE and T)."""
-    if len(parts) == 1:
-        return parts[0]
-    per_seed = [v for p in parts for v in p["per_seed"]]
-    jerks = [v for p in parts for v in p["per_seed_jerk"]]
-    row = dict(parts[0])
-    row.update(
-        success=sum(per_seed) / len(per_seed),
-        jerk=sum(jerks) / len(jerks) if jerks else float("nan"),
-        quat_norm_err=max(p["quat_norm_err"] for p in parts),  # nan stays nan (not a pose task)
-        env_steps=sum(p["env_steps"] for p in parts),
-        seconds=sum(p["seconds"] for p in parts),
-        seeds=f"{parts[0]['seeds'].split('-')[0]}-{parts[-1]['seeds'].split('-')[-1]}",
-        per_seed=per_seed,
-        per_seed_jerk=jerks,
-    )
-    return row
-
-
-def sweep(model, cfg: DictConfig, progress=None) -> list[dict]:
-    """Every (NFE, T) of ``cfg.eval`` on ``eval.seeds`` seeds, stepped `eval_num_envs` at a time
-    (one env per chunk of seeds, built once for all settings, over ``eval.workers``
-    processes)."""
-    seeds = list(range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds)))
-    size = eval_num_envs(cfg)
-    chunks = [seeds[i:i + size] for i in range(0, len(seeds), size)]
-    settings = list(sweep_settings(model, cfg.eval.nfes, cfg.eval.t_ends,
-                                   cfg.eval.get("time_table")))
-    parts: list[list[dict]] = [[] for _ in settings]
-    for chunk in chunks:
-        env, _ = make_env(cfg, chunk, _noise_dim(model, cfg))
-        try:
-            for k, (nfe, t_end) in enumerate(settings):
-                parts[k].append(evaluate(model, cfg, nfe, t_end, env, chunk))
-                if len(chunks) > 1:
-                    print(f"  NFE={nfe} T={t_end:g}: seeds {chunk[0]}-{chunk[-1]} done "
-                          f"({sum(parts[k][-1]['per_seed'])}/{len(chunk)} successes)")
-        finally:
-            env.close()
-    rows = []
-    for k in range(len(settings)):
-        rows.append(_merge(parts[k]))
-        if progress is not None:
-            progress(rows[-1])
-    return rows
-
-
-def write_tables(rows: list[dict], out_dir: Path, title: str, command: str) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
-    with open(out_dir / "eval.csv", "w", newline="") as f:
-        fields = [k for k in rows[0] if not k.startswith("per_seed")]
-        writer = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        writer.writeheader()
-        writer.writerows(rows)
-    lines = [f"## {title}", "", f"Command: `{command}`", "",
-             "| task | algo | actions | NFE | T | success | jerk (pos, /s^3) | max abs(norm(q)-1) "
-             "| env steps | s |", "|---|---|---|---|---|---|---|---|---|---|"]
-    for r in rows:
-        err = "-" if math.isnan(r["quat_norm_err"]) else f"{r['quat_norm_err']:.1e}"
-        lines.append(f"| {r['task']} | {r['algo']} | {r['action_space']} | {r['nfe']} | "
-                     f"{r['t_end']:g} | {r['success']:.2f} | {r['jerk']:.3g} | {err} | "
-                     f"{r['env_steps']} | {r['seconds']:.0f} |")
-    (out_dir / "eval.md").write_text("\n".join(lines) + "\n")
-    return out_dir / "eval.md"

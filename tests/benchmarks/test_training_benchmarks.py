@@ -132,7 +132,8 @@ def test_gpu_check_ddp_overrides_are_the_recipes_settings(tmp_path):
     overrides = gpu_check.ddp_overrides(setting, "cuda", tmp_path, PUSHT, "paper", 30)
     with initialize_config_dir(config_dir=str(ROOT / "recipes" / "pusht"), version_base="1.3"):
         cfg = compose("config", overrides=overrides)  # an unknown key would raise here
-    assert (cfg.device, cfg.precision, cfg.preset, cfg.obs) == ("cuda", "bf16", "paper", "state")
+    assert (cfg.device, cfg.precision, cfg.model.unet_preset, cfg.obs) == ("cuda", "bf16", "paper",
+                                                                     "state")
     assert cfg.train.steps == 300 and cfg.train.max_minutes == 30
     assert cfg.train.batch_size == 256 and cfg.eval.final_eval is False
     assert cfg.out_dir == str(tmp_path) and cfg.logger.backend == "none"

@@ -7,6 +7,8 @@ import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+if str(ROOT) not in sys.path:  # `recipes.common` of this checkout, as the scripts import it
+    sys.path.insert(0, str(ROOT))
 
 
 def load_recipe(name: str):

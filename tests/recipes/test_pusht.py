@@ -3,7 +3,6 @@ a few steps, keeps a checkpoint and evaluates 2 seeds; eval.py re-evaluates a ch
 
 from __future__ import annotations
 
-import csv
 import json
 import math
 import os
@@ -14,6 +13,7 @@ import torch
 from recipe_loader import compose, load_recipe
 
 from rfmp_rl.checkpoint import load_checkpoint
+from rfmp_rl.eval import read_table
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = ROOT / "recipes" / "pusht"
@@ -40,18 +40,17 @@ TINY = [
     "train.steps=2", "train.val_every=1", "train.val_batches=1", "train.batch_size=4",
     "train.log_every=1", "optim.warmup_steps=1", "data.max_episodes=3", "data.val_episodes=2",
     "eval.seeds=2", "eval.nfes=[1]", "eval.t_ends=[1.0]", "eval.max_steps=12",
-    "eval.time_table=[]", "down_dims=[16,32]", f"data.path={PUSHT}", "threads=1",
+    "eval.time_table=[]", "model.down_dims=[16,32]", f"data.path={PUSHT}", "threads=1",
 ]
 
 
 def _rows(path: Path) -> list[dict]:
-    with open(path) as f:
-        return list(csv.DictReader(f))
+    return read_table(path)
 
 
 @pytest.mark.parametrize("obs", ["state", "image"])
 @pytest.mark.parametrize("space", ["euclidean", "sphere"])
-@pytest.mark.parametrize("algo", ["rfmp", "srfmp", "dp"])
+@pytest.mark.parametrize("algo", ["rfmp", "srfmp", "ddim"])
 def test_every_variant_trains_and_evaluates(recipe, tmp_path, algo, obs, space):
     cfg = _cfg([f"algo={algo}", f"obs={obs}", f"space={space}", f"out_dir={tmp_path}", *TINY])
     run = recipe["train"].train(cfg)
@@ -63,9 +62,9 @@ def test_every_variant_trains_and_evaluates(recipe, tmp_path, algo, obs, space):
     assert row["algo"] == algo and row["nfe"] == "1" and row["seeds"] == "100000-100001"
     assert 0.0 <= float(row["score"]) <= 1.0 and 0.0 <= float(row["success"]) <= 1.0
     assert int(row["env_steps"]) > 0 and math.isfinite(float(row["jerk"]))
-    if space == "sphere" and algo != "dp":
+    if space == "sphere" and algo != "ddim":
         assert float(row["manifold_err"]) <= 1e-5
-    if space == "sphere" and algo == "dp":  # projected after sampling, as the paper does
+    if space == "sphere" and algo == "ddim":  # projected after sampling, as the paper does
         assert float(row["manifold_err"]) <= 1e-5
     unit = "S^2 coords/s^3" if space == "sphere" else "px/s^3"  # jerk in the actions' units
     assert f"jerk ({unit})" in (run / "eval" / "eval.md").read_text()
@@ -82,7 +81,40 @@ def test_eval_script_reevaluates_a_checkpoint_with_its_own_seed_range(recipe, tm
                                                       (3, 1.0)]
     assert all(r["seeds"] == "7-9" for r in rows)
     text = (tmp_path / "ev" / "eval.md").read_text()
-    assert "Integration time" in text and "T=1 (NFE 3)" in text
+    assert text.startswith("Command: `python recipes/pusht/eval.py")
+    # every cell names its NFE and the end time reached: SRFMP's NFE 1 stops at 1 / lambda_x
+    assert "| srfmp | 1 | 1.6 | 0.40 |" in text
+    assert "Integration time" in text and "| NFE 3, T 1.00 |" in text
+    csv_text = (tmp_path / "ev" / "eval.csv").read_text()
+    assert csv_text.startswith("# python recipes/pusht/eval.py")
+
+
+def test_a_checkpoint_of_an_earlier_version_evaluates_as_before(recipe, tmp_path):
+    # earlier versions stored flat settings (horizon, t0_fraction, ...) and algo: dp
+    run = recipe["train"].train(_cfg(["algo=ddim", f"out_dir={tmp_path / 'run'}", *TINY,
+                                      "eval.final_eval=false"]))
+    payload = torch.load(run / "best.pt", weights_only=False)
+    config = payload["config"]
+    flat = {**{k: v for k, v in config.items() if k not in ("model", "loss")},
+            **config["model"], **config["loss"], "algo": "dp"}
+    flat["preset"], flat["prior"] = flat.pop("unet_preset"), flat.pop("prior_sphere")
+    del flat["time_sampling"]
+    old = tmp_path / "old.pt"
+    torch.save({**payload, "config": flat}, old)
+    common = ["eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=10", "threads=1"]
+    (a,) = recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={run / 'best.pt'}", *common,
+                                                    f"eval.out={tmp_path / 'new'}"]))
+    (b,) = recipe["eval"].evaluate_checkpoint(_cfg([f"checkpoint={old}", *common,
+                                                    f"eval.out={tmp_path / 'old'}"]))
+    assert a["algo"] == b["algo"] == "ddim"
+    for key in ("seed", "score", "jerk", "success"):
+        assert b["per_seed"][key] == a["per_seed"][key], key
+    assert b["score"] == a["score"] and b["jerk"] == a["jerk"]
+
+
+def test_algo_dp_names_its_new_name(recipe):
+    with pytest.raises(ValueError, match="algo=dp is now algo=ddim"):
+        recipe["utils"].check_config(_cfg(["algo=dp"]))
 
 
 def test_eval_script_names_a_missing_checkpoint(recipe, tmp_path):
@@ -161,7 +193,7 @@ def test_a_refused_resume_names_the_setting_and_leaves_the_run_untouched(recipe,
     before = _files(run)
     for override, message in (("algo=rfmp", "algo='rfmp' \\(the run has 'srfmp'\\)"),
                               ("space=sphere", "space='sphere'"),
-                              ("horizon=8", "horizon=8")):
+                              ("model.horizon=8", "model.horizon=8")):
         with pytest.raises(ValueError, match=message):
             recipe["train"].train(_cfg([f"resume={run}", override]),
                                   overrides=[f"resume={run}", override])

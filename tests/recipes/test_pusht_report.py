@@ -43,7 +43,8 @@ def _run(folder: Path, scores: dict[tuple[int, float], float], **changes) -> Pat
 
 def test_command_lists_exactly_the_settings_that_differ_from_the_recipe(report):
     cfg = copy.deepcopy(DEFAULTS)
-    cfg.update(obs="image", t0_fraction=0.3, time_max=2.0, out_dir="runs/x")
+    cfg.update(obs="image", out_dir="runs/x")
+    cfg["loss"].update(t0_fraction=0.3, time_max=2.0)
     cfg["train"]["batch_size"] = 64
     cfg["eval"]["nfes"] = [1, 3]
     cfg["eval"]["time_table"] = []
@@ -51,23 +52,23 @@ def test_command_lists_exactly_the_settings_that_differ_from_the_recipe(report):
     words = command.split()
     assert words[:2] == [".venv/bin/python", "recipes/pusht/train.py"]
     assert words[2:5] == ["algo=srfmp", "obs=image", "space=euclidean"]
-    assert set(words[5:]) == {"t0_fraction=0.3", "time_max=2.0", "train.batch_size=64",
+    assert set(words[5:]) == {"loss.t0_fraction=0.3", "loss.time_max=2.0", "train.batch_size=64",
                               "'eval.nfes=[1,3]'", "'eval.time_table=[]'"}
 
 
 def test_report_collects_runs_into_one_table_with_their_commands(report, tmp_path):
-    a = _run(tmp_path / "a", {(1, 1.0): 0.9, (3, 1.0): 0.8}, t0_fraction=0.3)
-    b = _run(tmp_path / "b", {(1, 1.0): 0.1}, algo="dp", train__batch_size=64)
+    a = _run(tmp_path / "a", {(1, 1.0): 0.9, (3, 1.0): 0.8}, loss__t0_fraction=0.3)
+    b = _run(tmp_path / "b", {(1, 1.0): 0.1}, algo="ddim", train__batch_size=64)
     notes = tmp_path / "notes.md"
     notes.write_text("## Notes\nkept verbatim\n")
     out = tmp_path / "out.md"
     text = report.main([str(a), str(b), "--notes", str(notes), "--out", str(out)])
     assert out.read_text() == text
     rows = [line for line in text.splitlines() if line.startswith("| srfmp") or
-            line.startswith("| dp")]
+            line.startswith("| ddim")]
     assert rows[0].endswith("| 0.900 | 0.800 |") and "0.3 of training times at t = 0" in rows[0]
     assert rows[1].endswith("| 0.100 | - |")
-    assert "train.py algo=dp obs=state space=euclidean train.batch_size=64`" in text
+    assert "train.py algo=ddim obs=state space=euclidean train.batch_size=64`" in text
     assert "best validation loss 0.3000 at step 100" in text and "200 steps in 2.5 min" in text
     assert text.endswith("## Notes\nkept verbatim\n")
 
@@ -113,3 +114,14 @@ def test_training_seeds_of_one_setting_are_averaged_and_others_kept_apart(report
     seeded = [line for line in text.splitlines() if line.startswith("| s0 (0)")]
     assert seeded == ["| s0 (0), s1 (1), s2 (2) | 0.870 (0.840, 0.900, 0.870) | - |"]
     assert "lr (1)" not in text
+
+
+def test_runs_of_earlier_versions_are_reported_in_todays_names(report, tmp_path):
+    run = _run(tmp_path / "old", {(1, 1.0): 0.4}, algo="ddim")
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    flat = {k: v for k, v in cfg.items() if k not in ("model", "loss")}
+    flat.update(algo="dp", horizon=8, t0_fraction=0.0, preset="small", prior="uniform")
+    (run / "config.yaml").write_text(yaml.safe_dump(flat))
+    text = report.main([str(run)])
+    assert "train.py algo=ddim obs=state space=euclidean model.horizon=8`" in text
+    assert "| ddim state euclidean" in text

@@ -4,13 +4,14 @@ images); eval.py re-evaluates a checkpoint."""
 
 from __future__ import annotations
 
-import csv
 import math
 import os
 from pathlib import Path
 
 import pytest
 from recipe_loader import compose, load_recipe
+
+from rfmp_rl.eval import read_table
 
 ROOT = Path(__file__).resolve().parents[2]
 RECIPE = ROOT / "recipes" / "robosuite"
@@ -36,13 +37,13 @@ def _cfg(overrides):
 TINY = [
     "data.demos=3", "data.val_episodes=1", "train.steps=2", "train.val_every=1",
     "train.val_batches=1", "train.batch_size=4", "train.log_every=1", "optim.warmup_steps=1",
-    "eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=12", "down_dims=[16,32]", "threads=1",
+    "eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=12", "model.down_dims=[16,32]", "threads=1",
 ]
 
 VARIANTS = [
     ("Lift", "srfmp", "state", "delta", "riemannian"),
     ("Lift", "rfmp", "state", "abs_pose", "riemannian"),
-    ("Lift", "dp", "state", "abs_pose", "riemannian"),
+    ("Lift", "ddim", "state", "abs_pose", "riemannian"),
     ("Lift", "srfmp", "state", "abs_pose", "euclidean"),
     ("PickPlaceCan", "srfmp", "state", "delta", "riemannian"),
     ("NutAssemblySquare", "rfmp", "state", "abs_pose", "riemannian"),
@@ -61,8 +62,7 @@ def test_variant_trains_and_evaluates(recipe, data_dir, tmp_path, task, algo, ob
     for name in ("best.pt", "last.pt", "config.yaml", "history.json", "eval/eval.csv",
                  "eval/eval.md"):
         assert (run / name).is_file() and (run / name).stat().st_size > 0, name
-    with open(run / "eval" / "eval.csv") as f:
-        (row,) = list(csv.DictReader(f))
+    (row,) = read_table(run / "eval" / "eval.csv")
     assert row["task"] == task and row["algo"] == algo and row["seeds"] == "100000-100001"
     assert 0.0 <= float(row["success"]) <= 1.0 and int(row["env_steps"]) > 0
     assert math.isfinite(float(row["jerk"]))
@@ -96,9 +96,10 @@ def test_eval_script_uses_its_own_seeds(recipe, data_dir, tmp_path):
     split = recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.num_envs=2",
                                                      f"eval.out={tmp_path / 'e2'}"]))
     (a,), (b,) = whole, split
-    assert b["seeds"] == "500-502" and len(b["per_seed"]) == 3 and b["env_steps"] == a["env_steps"]
-    assert b["per_seed"] == a["per_seed"] and b["success"] == a["success"]
-    assert len(b["per_seed_jerk"]) == 3 and math.isclose(b["jerk"], a["jerk"], rel_tol=1e-4)
+    assert b["seeds"] == "500-502" and b["per_seed"]["seed"] == [500, 501, 502]
+    assert b["per_seed"]["success"] == a["per_seed"]["success"] and b["success"] == a["success"]
+    assert b["env_steps"] == a["env_steps"]
+    assert len(b["per_seed"]["jerk"]) == 3 and math.isclose(b["jerk"], a["jerk"], rel_tol=1e-4)
     with pytest.raises(ValueError, match="eval.num_envs"):
         recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.num_envs=0"]))
 
@@ -117,10 +118,11 @@ def test_parallel_evaluation_gives_the_serial_per_seed_results(recipe, data_dir,
                                                         f"eval.out={tmp_path / 'p'}"]))
     (a,), (b,) = serial, parallel
     assert b["seeds"] == a["seeds"] == "700-702"
-    assert b["per_seed"] == a["per_seed"] and b["env_steps"] == a["env_steps"]
-    assert len(b["per_seed_jerk"]) == 3
-    for x, y in zip(a["per_seed_jerk"], b["per_seed_jerk"], strict=True):
-        assert math.isclose(x, y, rel_tol=1e-4), (a["per_seed_jerk"], b["per_seed_jerk"])
+    assert b["per_seed"]["success"] == a["per_seed"]["success"]
+    assert b["env_steps"] == a["env_steps"]
+    assert len(b["per_seed"]["jerk"]) == 3
+    for x, y in zip(a["per_seed"]["jerk"], b["per_seed"]["jerk"], strict=True):
+        assert math.isclose(x, y, rel_tol=1e-4), (a["per_seed"]["jerk"], b["per_seed"]["jerk"])
     with pytest.raises(ValueError, match="eval.workers"):
         recipe["eval"].evaluate_checkpoint(_cfg([*common, "eval.workers=0"]))
 

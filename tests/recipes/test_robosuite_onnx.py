@@ -23,7 +23,7 @@ pytest.importorskip("onnxscript")
 TINY = [
     "data.demos=3", "data.val_episodes=1", "train.steps=2", "train.val_every=1",
     "train.val_batches=1", "train.batch_size=4", "train.log_every=1", "optim.warmup_steps=1",
-    "eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=12", "down_dims=[16,32]", "threads=1",
+    "eval.seeds=2", "eval.nfes=[1]", "eval.max_steps=12", "model.down_dims=[16,32]", "threads=1",
 ]
 
 
