@@ -15,6 +15,7 @@ t = 1 is not in doubt).
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import sys
 import tempfile
 import time
@@ -23,13 +24,21 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 
+from rfmp_rl.solvers import SolverConfig
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "recipes"))
-sys.path.insert(0, str(ROOT))
 
-import quickstart as qs  # noqa: E402
 
-from rfmp_rl.solvers import SolverConfig  # noqa: E402
+def _load_quickstart():
+    """recipes/quickstart.py as a module (recipes/ is not a package)."""
+    spec = importlib.util.spec_from_file_location("quickstart", ROOT / "recipes" / "quickstart.py")
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+qs = _load_quickstart()
 
 NFES, T_ENDS = (1, 5, 10), (1.0, 1.6)
 

@@ -27,12 +27,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from rfmp_rl.data.convert import main as convert_main
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-import numpy as np  # noqa: E402
-
-from rfmp_rl.data.convert import main as convert_main  # noqa: E402
 
 T0 = 1_700_000_000 * 10**9
 CONFIG = """rate_hz: 10

@@ -21,16 +21,15 @@ import sys
 import time
 from pathlib import Path
 
+import torch
+
+from rfmp_rl import keys
+from rfmp_rl.data import DemonstrationStore, read_dp_zarr
+from rfmp_rl.envs.pusht import pusht_episodes
+from rfmp_rl.modules import ModelConfig, build_model
+from rfmp_rl.objectives import make_loss
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-import torch  # noqa: E402
-
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.data import DemonstrationStore, read_dp_zarr  # noqa: E402
-from rfmp_rl.envs.pusht import pusht_episodes  # noqa: E402
-from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
 
 
 def median_seconds(fn, repeats: int) -> float:

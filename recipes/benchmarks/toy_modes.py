@@ -31,11 +31,10 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold  # noqa: E402
-from rfmp_rl.modules import EMA, ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold
+from rfmp_rl.modules import EMA, ModelConfig, build_model
+from rfmp_rl.objectives import make_loss
 
 #: name -> (algorithm, manifold, T_p, NFE)
 CASES = {
@@ -121,7 +120,7 @@ def train(
     start = time.perf_counter()
     for _ in range(steps):
         mode = torch.randint(0, 2, (batch,))
-        data = TensorDict({"observation": observation(mode), "action": modes[mode]}, [batch])
+        data = TensorDict({keys.OBSERVATION: observation(mode), keys.ACTION: modes[mode]}, [batch])
         value = sum(v for k, v in loss(data).items() if k.startswith("loss_"))
         opt.zero_grad()
         value.backward()
