@@ -15,6 +15,7 @@ at the recipe's batch sizes (state 256, image 64). The target: sampling <= 10% o
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import sys
@@ -90,9 +91,8 @@ def main() -> None:
         f"({cpu}, {args.threads} threads, torch {torch.__version__}); medians of "
         "200 (state) / 50 (image) draws and 10 / 5 training steps.",
         "",
-        "Measured on the 2-core development machine while other single-thread jobs (training, "
-        "evaluation) shared the two cores (both timings in the same process, so the ratio is "
-        "like for like).",
+        f"Measured on a {os.cpu_count()}-core CPU machine (both timings in the same process, so "
+        "the ratio is like for like even when other jobs share the cores).",
         "",
         "| store | batch | rb.sample() ms | SRFMP small train step ms | sample / step |",
         "|---|---|---|---|---|",

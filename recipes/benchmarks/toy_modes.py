@@ -47,8 +47,9 @@ CASES = {
 }
 
 #: Training settings per step manifold. The 16-step pose chunk (128 numbers) needs a wider UNet
-#: than the 4-step S^2 chunk (12 numbers); at 2 threads here ~100 ms/step, so 1100 steps keep it
-#: under the 2-minute budget, with a larger learning rate to make up for the fewer steps.
+#: than the 4-step S^2 chunk (12 numbers); at 2 threads on a 2-core CPU machine ~100 ms/step, so
+#: 1100 steps keep it under the 2-minute budget, with a larger learning rate to make up for the
+#: fewer steps.
 SETTINGS = {
     "S2": {"down_dims": [32, 64], "steps": 1500, "lr": 3e-3, "prior_scale": 0.5},
     "R3 x S3 x R1": {"down_dims": [64, 128], "steps": 1100, "lr": 1e-2, "prior_scale": 1.0},

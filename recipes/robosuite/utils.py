@@ -233,7 +233,7 @@ def make_env(cfg: DictConfig, seeds: list[int], noise_dim: int | None = None):
     )
 
 
-IMAGE_EVAL_ENVS = 10  # rendering envs stepped at once by default: 50 held over 20 GB here
+IMAGE_EVAL_ENVS = 10  # rendering envs stepped at once by default: 50 at once need over 20 GB
 
 
 def eval_num_envs(cfg: DictConfig) -> int:
