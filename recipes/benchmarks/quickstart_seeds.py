@@ -104,10 +104,10 @@ def main() -> None:
         )
         Path(args.out).write_text(
             "# Quickstart: SRFMP's DTW at T = 1.6 vs T = 1.0 across training seeds\n\n"
+            + f"Command ({time.perf_counter() - start:.0f} s on a {os.cpu_count()}-core CPU "
+            + f"machine): `{cmd}`\n\n"
             + __doc__.split("\n\n", 2)[2].strip()
-            + f"\n\nRegenerate with ({time.perf_counter() - start:.0f} s on a "
-            + f"{os.cpu_count()}-core CPU machine):"
-            + f"\n\n```\n{cmd}\n```\n\nConfig: `recipes/quickstart.yaml`"
+            + "\n\nConfig: `recipes/quickstart.yaml`"
             + (f" with {' '.join(overrides)}" if overrides else "")
             + f" (steps {cfg.steps}, batch {cfg.batch_size}, {cfg.threads} threads).\n\n"
             + "\n".join(lines)

@@ -190,8 +190,9 @@ def main() -> None:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(
             "# Two-mode toy data: sample quality after a short CPU training run\n\n"
+            + f"Command: `{cmd}`\n\n"
             + (__doc__.split("\n\n", 2)[2].strip())
-            + f"\n\nRegenerate with:\n\n```\n{cmd}\n```\n\n"
+            + "\n\n"
             + "\n".join(lines)
             + "\n"
         )

@@ -470,7 +470,7 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument("--data", default=None, help="Push-T zarr (default: the recipe's)")
     parser.add_argument("--synthetic", action="store_true", help="synthetic batches, no zarr")
     parser.add_argument("--ddp-timeout", type=float, default=900, help="seconds per torchrun")
-    parser.add_argument("--out", default=None, help="write the markdown report here too")
+    parser.add_argument("--out", default=None, help="also write the markdown report to this file")
     parser.add_argument("--ddp-worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--json", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
