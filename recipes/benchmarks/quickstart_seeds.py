@@ -8,7 +8,7 @@ For each seed, trains SRFMP as `recipes/quickstart.py` does (its config file, pl
 quickstart's model, which is trained after RFMP) and rolls it out closed loop from the
 quickstart's 42 start points, at NFE 1, 5 and 10 and end times T = 1.0 and 1.6. Prints the
 mean DTW to the nearest demonstration and the ratio DTW(T = 1.6) / DTW(T = 1.0) per NFE, the
-figure the quickstart's acceptance bounds by 1.10 (RFMP is not trained here: its growth past
+figure the quickstart checks against 1.10 (RFMP is not trained by this script: its growth past
 t = 1 is not in doubt).
 """
 
