@@ -18,6 +18,7 @@ function returning its Markdown lines, listed in ``SECTIONS``.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import os
 import platform
 import statistics
@@ -27,12 +28,20 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-sys.path.insert(0, str(ROOT / "tests" / "data"))  # the LeRobot dataset writer of the tests
+from rfmp_rl.data.lerobot import read_lerobot
+from rfmp_rl.data.store import DemonstrationStore
 
-from rfmp_rl.data.lerobot import read_lerobot  # noqa: E402
-from rfmp_rl.data.store import DemonstrationStore  # noqa: E402
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def _load_lerobot_fixture():
+    """tests/data/lerobot_fixture.py, the LeRobot dataset writer of the tests, as a module."""
+    path = ROOT / "tests" / "data" / "lerobot_fixture.py"
+    spec = importlib.util.spec_from_file_location("lerobot_fixture", path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    return module
 
 CAMERA = "observation.images.top"
 
@@ -55,7 +64,8 @@ def section_lerobot(repeats: int, episodes: int = 2, frames: int = 300, size: in
     """LeRobot conversion: frames per second by format version and camera storage."""
     import av
     import pyarrow
-    from lerobot_fixture import make_episodes, write_lerobot
+    fixture = _load_lerobot_fixture()
+    make_episodes, write_lerobot = fixture.make_episodes, fixture.write_lerobot
 
     lines = [
         "## LeRobot",

@@ -42,10 +42,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-
-import torch  # noqa: E402
-from training_throughput import (  # noqa: E402
+import torch
+from training_throughput import (
     ROOT,
     TITLES,
     TaskData,
@@ -54,9 +52,9 @@ from training_throughput import (  # noqa: E402
     make_policy,
 )
 
-from rfmp_rl.checkpoint import load_checkpoint  # noqa: E402
-from rfmp_rl.onnx_export import export_onnx  # noqa: E402
-from rfmp_rl.training import (  # noqa: E402
+from rfmp_rl.checkpoint import load_checkpoint
+from rfmp_rl.onnx_export import export_onnx
+from rfmp_rl.training import (
     LoggerConfig,
     OptimConfig,
     TrainConfig,

@@ -42,8 +42,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-sys.path.insert(0, str(REPO / "deploy"))
+sys.path.insert(0, str(REPO / "deploy"))  # rfmp_deploy is not installed: it ships as a folder
 
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402
@@ -52,6 +51,7 @@ from configs import task_config  # noqa: E402
 from rfmp_deploy import Controller, Policy  # noqa: E402
 from torch import nn  # noqa: E402
 
+from rfmp_rl import keys  # noqa: E402
 from rfmp_rl.modules import FlowModel, build_model  # noqa: E402
 from rfmp_rl.onnx_export import export_onnx  # noqa: E402
 
@@ -173,25 +173,25 @@ def measure(
 
     policy = session(policy_path, threads)
     network = session(network_path, threads)
-    policy_feed = {"observation": obs, "prior_noise": noise}
+    policy_feed = {keys.OBSERVATION: obs, keys.PRIOR_NOISE: noise}
     network_feed = {"x": x, "tau": tau, "cond": cond}
     obs_t, noise_t = torch.from_numpy(obs), torch.from_numpy(noise)
     controller = Controller(Policy(policy_path, intra_op_threads=threads), seed=0, action_steps=1)
-    step_obs = {"observation": obs[0, 1]}
+    step_obs = {keys.OBSERVATION: obs[0, 1]}
 
     @torch.no_grad()
     def eager() -> None:
         model.sample(model.encode(obs_t), noise_t, nfe=1)
 
     calls = {
-        "policy": lambda: policy.run(["action"], policy_feed),
+        "policy": lambda: policy.run([keys.ACTION], policy_feed),
         "network": lambda: network.run(None, network_feed),
         "eager": eager,
         "deploy": lambda: controller.step(step_obs),
     }
     for precision, (path, _) in variants.items():
         calls[f"policy_{precision}"] = functools.partial(
-            session(path, threads).run, ["action"], policy_feed)
+            session(path, threads).run, [keys.ACTION], policy_feed)
     times: dict[str, list[float]] = {name: [] for name in calls}
     per_block = -(-args.runs // args.blocks)
     for call in calls.values():  # warm-up: first calls allocate

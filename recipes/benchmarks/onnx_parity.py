@@ -19,10 +19,8 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
-from rfmp_rl.onnx_export import export_onnx  # noqa: E402
+from rfmp_rl.modules import ModelConfig, build_model
+from rfmp_rl.onnx_export import export_onnx
 
 
 def make(algorithm: str, manifold: str, obs: str):

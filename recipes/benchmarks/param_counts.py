@@ -9,14 +9,10 @@ encoder's convolutional trunk, as in the paper's hyperparameter table.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+from configs import PAPER_COUNTS, task_config
 
-from configs import PAPER_COUNTS, task_config  # noqa: E402
-
-from rfmp_rl.modules import build_model  # noqa: E402
+from rfmp_rl.modules import build_model
 
 
 def count(module) -> int:

@@ -27,12 +27,11 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
+from rfmp_rl.data.convert import main as convert_main
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-import numpy as np  # noqa: E402
-
-from rfmp_rl.data.convert import main as convert_main  # noqa: E402
 
 T0 = 1_700_000_000 * 10**9
 CONFIG = """rate_hz: 10
@@ -148,9 +147,10 @@ def main() -> None:
         "64x64 JPEG CompressedImage at 15 Hz, converted to a store at 10 Hz (flat action "
         "R3 x S3 x R1, decoded images, written to disk); median of "
         f"{args.repeats} runs in one process ({platform.machine()}, Python "
-        f"{platform.python_version()}, OMP_NUM_THREADS={threads or 'unset'}), on the 2-core "
-        f"development machine shared with other jobs (1-minute load average {load_before:.1f} "
-        f"before, {load_after:.1f} after: with a load above 2 the figures are lower bounds).",
+        f"{platform.python_version()}, OMP_NUM_THREADS={threads or 'unset'}), on a "
+        f"{os.cpu_count()}-core CPU machine (1-minute load average {load_before:.1f} before, "
+        f"{load_after:.1f} after: with a load above {os.cpu_count()} the figures are lower "
+        "bounds).",
         "",
         "| format | messages | episode steps | wall time s | messages/s |",
         "|---|---|---|---|---|",

@@ -15,22 +15,22 @@ at the recipe's batch sizes (state 256, image 64). The target: sampling <= 10% o
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import sys
 import time
 from pathlib import Path
 
+import torch
+
+from rfmp_rl import keys
+from rfmp_rl.data import DemonstrationStore, read_dp_zarr
+from rfmp_rl.envs.pusht import pusht_episodes
+from rfmp_rl.modules import ModelConfig, build_model
+from rfmp_rl.objectives import make_loss
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT))
-
-import torch  # noqa: E402
-
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.data import DemonstrationStore, read_dp_zarr  # noqa: E402
-from rfmp_rl.envs.pusht import pusht_episodes  # noqa: E402
-from rfmp_rl.modules import ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
 
 
 def median_seconds(fn, repeats: int) -> float:
@@ -91,9 +91,8 @@ def main() -> None:
         f"({cpu}, {args.threads} threads, torch {torch.__version__}); medians of "
         "200 (state) / 50 (image) draws and 10 / 5 training steps.",
         "",
-        "Measured on the 2-core development machine while other single-thread jobs (training, "
-        "evaluation) shared the two cores (both timings in the same process, so the ratio is "
-        "like for like).",
+        f"Measured on a {os.cpu_count()}-core CPU machine (both timings in the same process, so "
+        "the ratio is like for like even when other jobs share the cores).",
         "",
         "| store | batch | rb.sample() ms | SRFMP small train step ms | sample / step |",
         "|---|---|---|---|---|",

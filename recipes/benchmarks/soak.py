@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "deploy"))
+sys.path.insert(0, str(REPO / "deploy"))  # rfmp_deploy is not installed: it ships as a folder
 
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402
@@ -51,7 +51,6 @@ def rss_bytes() -> int:
 
 def _export(preset: str, path: str) -> None:
     """Child process: torch, rfmp_rl and the export live and die here."""
-    sys.path.insert(0, str(Path(__file__).resolve().parent))
     from latency import export_policy
 
     export_policy(preset, path)

@@ -18,22 +18,21 @@ import sys
 import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
+import torch
+from configs import task_config
+from tensordict import TensorDict
 
-import torch  # noqa: E402
-from configs import task_config  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
-
-from rfmp_rl.modules import build_model  # noqa: E402
-from rfmp_rl.objectives import make_loss  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.modules import build_model
+from rfmp_rl.objectives import make_loss
 
 NFES = (1, 2, 3, 5, 10)
 
 
 def fake_batch(model, batch: int) -> TensorDict:
-    data = {"action": model.chunk.unflatten(model.chunk.random_base(batch))}
+    data = {keys.ACTION: model.chunk.unflatten(model.chunk.random_base(batch))}
     if model.cfg.obs_dim:
-        data["observation"] = torch.randn(batch, 2, model.cfg.obs_dim)
+        data[keys.OBSERVATION] = torch.randn(batch, 2, model.cfg.obs_dim)
     for name, shape in model.cfg.cameras.items():
         data[name] = torch.randint(0, 255, (batch, 2, *shape), dtype=torch.uint8)
     return TensorDict(data, [batch])
@@ -60,7 +59,7 @@ def train_throughput(model, batch: int, steps: int) -> float:
 def sampling_latency(model, nfe: int, repeats: int) -> float:
     model.eval()
     td = fake_batch(model, 1)
-    obs = td.get("observation", None)
+    obs = td.get(keys.OBSERVATION, None)
     images = {n: td[n] for n in model.cameras} or None
     times = []
     for i in range(repeats + 1):

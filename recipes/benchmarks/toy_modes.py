@@ -31,11 +31,10 @@ from pathlib import Path
 import torch
 from tensordict import TensorDict
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-
-from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold  # noqa: E402
-from rfmp_rl.modules import EMA, ModelConfig, build_model  # noqa: E402
-from rfmp_rl.objectives import LossConfig, make_loss  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.manifolds import Manifold, Sphere, leaf_slices, parse_manifold
+from rfmp_rl.modules import EMA, ModelConfig, build_model
+from rfmp_rl.objectives import LossConfig, make_loss
 
 #: name -> (algorithm, manifold, T_p, NFE)
 CASES = {
@@ -48,8 +47,9 @@ CASES = {
 }
 
 #: Training settings per step manifold. The 16-step pose chunk (128 numbers) needs a wider UNet
-#: than the 4-step S^2 chunk (12 numbers); at 2 threads here ~100 ms/step, so 1100 steps keep it
-#: under the 2-minute budget, with a larger learning rate to make up for the fewer steps.
+#: than the 4-step S^2 chunk (12 numbers); at 2 threads on a 2-core CPU machine ~100 ms/step, so
+#: 1100 steps keep it under the 2-minute budget, with a larger learning rate to make up for the
+#: fewer steps.
 SETTINGS = {
     "S2": {"down_dims": [32, 64], "steps": 1500, "lr": 3e-3, "prior_scale": 0.5},
     "R3 x S3 x R1": {"down_dims": [64, 128], "steps": 1100, "lr": 1e-2, "prior_scale": 1.0},
@@ -122,7 +122,7 @@ def train(
     start = time.perf_counter()
     for _ in range(steps):
         mode = torch.randint(0, 2, (batch,))
-        data = TensorDict({"observation": observation(mode), "action": modes[mode]}, [batch])
+        data = TensorDict({keys.OBSERVATION: observation(mode), keys.ACTION: modes[mode]}, [batch])
         value = sum(v for k, v in loss(data).items() if k.startswith("loss_"))
         opt.zero_grad()
         value.backward()
@@ -191,8 +191,9 @@ def main() -> None:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out).write_text(
             "# Two-mode toy data: sample quality after a short CPU training run\n\n"
+            + f"Command: `{cmd}`\n\n"
             + (__doc__.split("\n\n", 2)[2].strip())
-            + f"\n\nRegenerate with:\n\n```\n{cmd}\n```\n\n"
+            + "\n\n"
             + "\n".join(lines)
             + "\n"
         )

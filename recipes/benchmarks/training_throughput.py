@@ -43,18 +43,13 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-sys.path.insert(0, str(ROOT))
+import torch
+from configs import task_config
+from tensordict import TensorDict
 
-import torch  # noqa: E402
-from configs import task_config  # noqa: E402
-from tensordict import TensorDict  # noqa: E402
-
-from rfmp_rl import keys  # noqa: E402
-from rfmp_rl.modules import build_model  # noqa: E402
-from rfmp_rl.training import (  # noqa: E402
+from rfmp_rl import keys
+from rfmp_rl.modules import build_model
+from rfmp_rl.training import (
     LoggerConfig,
     OptimConfig,
     TrainConfig,
@@ -63,6 +58,7 @@ from rfmp_rl.training import (  # noqa: E402
     setup_runtime,
 )
 
+ROOT = Path(__file__).resolve().parents[2]
 TASKS = ("pusht_state", "pusht_image")
 TITLES = {"pusht_state": "Push-T state", "pusht_image": "Push-T image, 96x96 camera"}
 #: Push-T's actions and low-dim observations are pixel coordinates of the 512 x 512 board.
@@ -474,7 +470,7 @@ def parse_args(argv: list[str] | None = None):
     parser.add_argument("--data", default=None, help="Push-T zarr (default: the recipe's)")
     parser.add_argument("--synthetic", action="store_true", help="synthetic batches, no zarr")
     parser.add_argument("--ddp-timeout", type=float, default=900, help="seconds per torchrun")
-    parser.add_argument("--out", default=None, help="write the markdown report here too")
+    parser.add_argument("--out", default=None, help="also write the markdown report to this file")
     parser.add_argument("--ddp-worker", action="store_true", help=argparse.SUPPRESS)
     parser.add_argument("--json", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)

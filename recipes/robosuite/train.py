@@ -7,8 +7,9 @@ checkpoint over 50 seeds at NFE {1, 2, 3, 5, 10}.
     python recipes/robosuite/train.py task=Lift action_space=abs_pose geometry=euclidean
 
 The demonstrations default to ``data/robosuite/<task>_<action_space>.hdf5``, written by the
-scripted expert on first use. Writes ``runs/robosuite/<task>_<algo>_<obs>_<action_space>_<time>/``:
-``best.pt``, ``last.pt``, ``logs/``, ``history.json`` and ``eval/`` (eval.csv, eval.md).
+scripted expert on first use (``python recipes/robosuite/experts.py`` does it alone).
+Writes ``runs/robosuite/<task>_<algo>_<obs>_<action_space>_<time>/``: ``best.pt``, ``last.pt``,
+``logs/``, ``history.json`` and ``eval/`` (eval.csv, eval.md).
 """
 
 from __future__ import annotations

@@ -108,7 +108,7 @@ def ensure_demos(cfg: DictConfig) -> Path:
     if not cfg.data.generate:
         raise FileNotFoundError(f"no demonstration file {path} (data.generate=true writes it "
                                 "with the scripted expert)")
-    from rfmp_rl.envs.robosuite_experts import generate_demos
+    from experts import generate_demos  # recipes/robosuite/experts.py
 
     print(f"generating {cfg.data.demos} expert demonstrations -> {path}")
     result = generate_demos(cfg.task, int(cfg.data.demos), cfg.action_space,

@@ -44,10 +44,11 @@ _READ_BY = {
 
 ROS_HELP = """ROS bags: --config names a YAML file that maps topics to keys and sets the control
 rate, flat action/observation vectors, and what a gap in a stream does (max_gap_s, on_gap). Every
-field is described in README.md, section "ROS bags: the topic config", and in the docstring of
-rfmp_rl.data.ros. --skip-bad skips unreadable bags and lists them at the end and in the
-manifest; without it the first unreadable bag stops the conversion. One worked path from a bag
-to a trained policy and an exported controller: README.md, section "From a bag to a controller".
+field is described in rfmp_rl/data/README.md, section "ROS bags: the topic config", and in the
+docstring of rfmp_rl.data.ros. --skip-bad skips unreadable bags and lists them at the end and in
+the manifest; without it the first unreadable bag stops the conversion. One worked path from a
+bag to a trained policy and an exported controller: rfmp_rl/data/README.md, section "From a bag
+to a controller".
 
 Quaternions (every reader): each episode's first sample at w >= 0, then sign continuity; keys,
 quaternion fields and every bad input with its message: rfmp_rl/data/README.md."""

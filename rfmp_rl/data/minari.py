@@ -46,7 +46,7 @@ from rfmp_rl.data.quaternions import (
     canonicalize_episode_quaternions,
     parse_quaternion_fields,
 )
-from rfmp_rl.keys import TIMESTAMP
+from rfmp_rl.keys import ACTION, OBSERVATION, TIMESTAMP
 
 __all__ = ["read_minari", "minari_dataset_path"]
 
@@ -185,10 +185,10 @@ def read_minari(
             observations = _read(group, "observations", file=file, episode=name,
                                  skip_non_numeric=True)
             arrays: dict[Any, np.ndarray] = {}
-            for key, action in _flatten("action", actions).items():
+            for key, action in _flatten(ACTION, actions).items():
                 arrays[key] = action
             steps = len(next(iter(arrays.values())))
-            for key, obs in _flatten("observation", observations).items():
+            for key, obs in _flatten(OBSERVATION, observations).items():
                 if isinstance(obs, _NonNumeric):
                     skipped_keys[key_name(key)] = f"non-numeric data ({obs.dtype})"
                     continue

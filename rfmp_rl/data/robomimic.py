@@ -59,7 +59,7 @@ from rfmp_rl.data.quaternions import (
     parse_quaternion_fields,
     robomimic_quaternion_fields,
 )
-from rfmp_rl.keys import TIMESTAMP
+from rfmp_rl.keys import ACTION, TIMESTAMP
 
 if TYPE_CHECKING:  # pragma: no cover
     import h5py
@@ -354,7 +354,7 @@ def _read_demo(
         )
     out = TensorDict(
         {
-            "action": raw["actions"],
+            ACTION: raw["actions"],
             "reward": _flag(raw["rewards"], file=file, key="rewards", episode=name),
             "done": _flag(raw["dones"], file=file, key="dones", episode=name) != 0,
         },
@@ -506,7 +506,7 @@ def _write_demo(
             file=file, episode=name,
         )
     length = int(ep.batch_size[0])
-    action = _leaf(ep, "action", file=file, name=name, label="action")
+    action = _leaf(ep, ACTION, file=file, name=name, label="action")
     reward = _leaf(ep, "reward", file=file, name=name, label="reward")
     done = _leaf(ep, "done", file=file, name=name, label="done")
     flags = {}

@@ -1,14 +1,15 @@
 """A kinematic point on S^2 driven toward the north pole: closed-loop LASA-on-the-sphere rollouts.
 
 The state is a point ``x`` on the unit sphere; the action is the commanded next point. The env
-moves to ``projx(action)`` when it lies within ``max_step`` (geodesic distance) of ``x``, and
-otherwise ``max_step`` along the geodesic toward it — exactly how `rfmp_rl.data.lasa_episodes`
+moves to ``projx(action)`` when it lies within ``max_move`` (geodesic distance) of ``x``, and
+otherwise ``max_move`` along the geodesic toward it — exactly how `rfmp_rl.data.lasa_episodes`
 encodes the demonstrations (``action_i = x_{i+1}``), so replaying a demonstration's actions
 reproduces it. The goal is the north pole, where every LASA demonstration ends.
 """
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Sequence
 
 import torch
@@ -30,7 +31,7 @@ class LasaSphereEnv(EnvBase):
     """Kinematic S^2 environment: observe the current point, command the next point.
 
     One step, with ``x`` the current point, ``y = projx(action)`` and ``d = dist(x, y)``:
-    ``x' = y`` if ``d <= max_step`` else ``Exp_x(max_step * Log_x(y) / d)`` (branch-free:
+    ``x' = y`` if ``d <= max_move`` else ``Exp_x(max_move * Log_x(y) / d)`` (branch-free:
     ``torch.where``). Reward ``-dist(x', goal)``. ``terminated`` when ``dist(x', goal) <=
     goal_tolerance``, ``truncated`` when the episode has taken ``max_steps`` steps; ``done`` is
     their union.
@@ -56,9 +57,9 @@ class LasaSphereEnv(EnvBase):
     Args:
         start_points: ``(K, 3)`` or ``(3,)`` default start points (projected onto S^2).
         batch_size: the env batch size, e.g. ``[N]``; ``[]`` for a single point.
-        max_step: the largest geodesic step (rad). The default 0.12 is a bit above the largest
-            step of any LASA demonstration at ``downsample=10`` (0.099 rad, GShape); scale it
-            with the downsampling factor (about ``0.012 * downsample``).
+        max_move: the largest geodesic move per step (rad). The default 0.12 is a bit above the
+            largest step of any LASA demonstration at ``downsample=10`` (0.099 rad, GShape);
+            scale it with the downsampling factor (about ``0.012 * downsample``).
         goal_tolerance: geodesic radius (rad) around the goal that terminates an episode.
         max_steps: episode length before ``truncated``; ``None`` never truncates.
         start_noise: geodesic radius (rad) of the random start perturbation; 0 disables it.
@@ -67,13 +68,14 @@ class LasaSphereEnv(EnvBase):
         device: torch device of the env.
         context: optional constant conditioning ``(*B, K)`` or ``(K,)`` (e.g. a one-hot shape
             id), emitted as the ``context`` observation at every reset and step.
+        max_step: deprecated name of ``max_move`` (a `DeprecationWarning`).
 
     Example:
         >>> env = LasaSphereEnv(torch.tensor([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]), batch_size=[2])
         >>> td = env.rollout(3, lambda td: td.set("action", env.goal.expand(2, 3)))
         >>> td["next", "observation"].shape, td["next", "step_count"][0, -1].item()
         (torch.Size([2, 3, 3]), 3)
-        >>> round(-td["next", "reward"][0, 0].item(), 4)  # pi/2 - max_step
+        >>> round(-td["next", "reward"][0, 0].item(), 4)  # pi/2 - max_move
         1.4508
     """
 
@@ -82,7 +84,7 @@ class LasaSphereEnv(EnvBase):
         start_points: torch.Tensor,
         batch_size: Sequence[int] | torch.Size = (),
         *,
-        max_step: float = 0.12,
+        max_move: float = 0.12,
         goal_tolerance: float = 0.02,
         max_steps: int | None = 300,
         start_noise: float = 0.0,
@@ -90,7 +92,12 @@ class LasaSphereEnv(EnvBase):
         seed: int | None = None,
         device: torch.device | str | None = None,
         context: torch.Tensor | None = None,
+        max_step: float | None = None,
     ) -> None:
+        if max_step is not None:
+            warnings.warn("LasaSphereEnv: max_step is deprecated, use max_move (the largest "
+                          "geodesic move per step, rad)", DeprecationWarning, stacklevel=2)
+            max_move = max_step
         super().__init__(device=device, batch_size=torch.Size(batch_size))
         if context is not None:
             context = torch.as_tensor(context, dtype=torch.float32, device=self.device)
@@ -104,12 +111,12 @@ class LasaSphereEnv(EnvBase):
                 "LasaSphereEnv: start_points must be (K, 3) or (3,), "
                 f"got {tuple(start_points.shape)}"
             )
-        if not max_step > 0:
-            raise ValueError(f"LasaSphereEnv: max_step must be > 0, got {max_step}")
+        if not max_move > 0:
+            raise ValueError(f"LasaSphereEnv: max_move must be > 0, got {max_move}")
         if max_steps is not None and int(max_steps) < 1:
             raise ValueError(f"LasaSphereEnv: max_steps must be >= 1 or None, got {max_steps}")
         self.start_points = _S2.projx(start_points)  # (K, 3)
-        self.max_step = float(max_step)
+        self.max_move = float(max_move)
         self.goal_tolerance = float(goal_tolerance)
         self.max_steps = None if max_steps is None else int(max_steps)
         self.start_noise = float(start_noise)
@@ -204,8 +211,8 @@ class LasaSphereEnv(EnvBase):
         x = tensordict.get(keys.OBSERVATION)  # (*B, 3)
         target = _S2.projx(tensordict.get(keys.ACTION).to(x.dtype))  # (*B, 3)
         dist = _S2.dist(x, target)  # (*B, 1)
-        limited = _S2.expmap(x, _S2.logmap(x, target) * (self.max_step / dist.clamp_min(1e-12)))
-        x_next = torch.where(dist <= self.max_step, target, limited)
+        limited = _S2.expmap(x, _S2.logmap(x, target) * (self.max_move / dist.clamp_min(1e-12)))
+        x_next = torch.where(dist <= self.max_move, target, limited)
         count = tensordict.get("step_count")
         moving = tensordict.get("_step", None)  # partial steps: frozen elements keep their state
         if moving is None:
@@ -255,7 +262,7 @@ def make_lasa_sphere_env(
         start_points: see `LasaSphereEnv`.
         batch_size: see `LasaSphereEnv`.
         obs_horizon: T_o, the observations the window's context is taken from.
-        **env_kwargs: forwarded to `LasaSphereEnv` (``max_step``, ``goal_tolerance``,
+        **env_kwargs: forwarded to `LasaSphereEnv` (``max_move``, ``goal_tolerance``,
             ``max_steps``, ``start_noise``, ``goal``, ``seed``, ``device``, ``context``). With a
             ``context`` (e.g. a one-hot shape id per batch element), each window step is
             ``[point, context]`` (``CatTensors``), so one policy can serve several shapes.

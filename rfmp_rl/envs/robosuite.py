@@ -296,7 +296,7 @@ class RobosuiteEnv(EnvBase):
             object state out). Every key keeps its own entry either way.
         max_steps: episode limit (default `ROBOSUITE_MAX_STEPS` of the task).
         seeds: ``N`` reset seeds (default ``100000 + i``, disjoint from the demo seeds of
-            `rfmp_rl.envs.robosuite_experts.generate_demos`); a ``seed`` entry ``(N,)`` in the
+            `generate_demos` of recipes/robosuite/experts.py); a ``seed`` entry ``(N,)`` in the
             reset TensorDict overrides them. Resets seed NumPy's global RNG (robosuite's object
             placement and arm initialisation noise draw from it) and restore it afterwards.
         hard_reset: rebuild the MuJoCo model at every reset (robosuite's default; slower). With

@@ -34,6 +34,8 @@ import torch
 from tensordict import TensorDictBase
 from torchrl.envs import EnvBase
 
+from rfmp_rl import keys
+
 __all__ = ["ControllerRollouts", "run_controller", "split_fields"]
 
 
@@ -82,7 +84,7 @@ def run_controller(
     max_steps: int,
     observe: Callable[[TensorDictBase], dict[str, np.ndarray]],
     outcome: Callable[[TensorDictBase], float],
-    action_key: str = "action",
+    action_key: str = keys.ACTION,
 ) -> ControllerRollouts:
     """One episode per seed: ``make_env(seed)`` (a batch-1 or unbatched TorchRL env whose
     ``reset`` starts the seed's episode), ``controller.reset()``, then up to ``max_steps`` steps

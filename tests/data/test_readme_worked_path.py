@@ -1,7 +1,7 @@
-"""README, "From a bag to a controller": the topic config, the `rfmp-convert ros` command, the
-training code, the export and the deploy check, read from README.md and run on two recorded
-bags (PoseStamped + Float64 commands, action flat on R3 x S3 x R1). Only the training budget
-(steps, batch size) is made smaller."""
+"""rfmp_rl/data/README.md, "From a bag to a controller": the topic config, the `rfmp-convert ros`
+command, the training code, the export and the deploy check, read from that file and run on two
+recorded bags (PoseStamped + Float64 commands, action flat on R3 x S3 x R1). Only the training
+budget (steps, batch size) is made smaller."""
 
 from __future__ import annotations
 
@@ -29,8 +29,8 @@ ROOT = Path(__file__).resolve().parents[2]
 
 
 def worked_path() -> list[tuple[str, str]]:
-    """The (language, code) blocks of the README section, in order."""
-    text = (ROOT / "README.md").read_text()
+    """The (language, code) blocks of the data README's section, in order."""
+    text = (ROOT / "rfmp_rl" / "data" / "README.md").read_text()
     section = text.split("## From a bag to a controller", 1)[1].split("\n## ", 1)[0]
     return re.findall(r"```(\w+)\n(.*?)```", section, flags=re.S)
 
@@ -67,7 +67,7 @@ def test_readme_bag_to_controller_runs_as_written(tmp_path, monkeypatch, capsys)
     small = code.replace("steps=20000", "steps=2, val_batches=1").replace("batch_size=64",
                                                                            "batch_size=4")
     assert small.count("steps=2,") == 1 and small.count("batch_size=4") == 1
-    exec(compile(small, "README.md", "exec"), {})
+    exec(compile(small, "rfmp_rl/data/README.md", "exec"), {})
     assert (tmp_path / "runs" / "teleop" / "best.pt").is_file()
 
     from rfmp_rl.data import DemonstrationStore

@@ -1046,11 +1046,11 @@ def test_unknown_or_conflicting_vector_config_is_refused(tmp_path):
 def test_readme_topic_config_is_a_valid_config():
     import yaml
 
-    readme = Path(__file__).resolve().parents[2] / "README.md"
-    section = readme.read_text().split("### ROS bags: the topic config", 1)[1]
+    readme = Path(__file__).resolve().parents[2] / "rfmp_rl" / "data" / "README.md"
+    section = readme.read_text().split("## ROS bags: the topic config", 1)[1]
     block = section.split("```yaml\n", 1)[1].split("```", 1)[0]
     data = yaml.safe_load(block)
-    assert set(data) == set(CONFIG_FIELDS)  # the README shows every field
+    assert set(data) == set(CONFIG_FIELDS)  # the data README shows every field
     cfg = RosbagConfig.from_dict(data)
     assert [p.topic for p in cfg.vectors["action"]] == ["/cmd_pose", "/gripper_cmd"]
     assert cfg.manifolds == {"action": "R3 x S3 x R1", "observation/state": "R3 x S3 x R1"}

@@ -67,10 +67,10 @@ def test_replaying_demonstrations_reproduces_them():
     assert not rollout["next", "done"][:, :-1].any()
 
 
-def test_max_step_limits_the_motion():
-    env = LasaSphereEnv(EAST, batch_size=[1], max_step=0.1, seed=0)
+def test_max_move_limits_the_motion():
+    env = LasaSphereEnv(EAST, batch_size=[1], max_move=0.1, seed=0)
     td = env.reset()
-    # Far command (pi/2 away): move exactly max_step along the geodesic toward it.
+    # Far command (pi/2 away): move exactly max_move along the geodesic toward it.
     out = env.step(td.set("action", NORTH[None].clone()))["next", "observation"]
     expected = torch.tensor([[math.cos(0.1), 0.0, math.sin(0.1)]])
     torch.testing.assert_close(out, expected, atol=1e-6, rtol=0)
@@ -78,7 +78,7 @@ def test_max_step_limits_the_motion():
     near = torch.tensor([[2.0, 0.1, 0.0]])
     out = env.step(env.reset().set("action", near))["next", "observation"]
     torch.testing.assert_close(out, near / near.norm(), atol=1e-7, rtol=0)
-    # Antipodal command: a finite step of length max_step.
+    # Antipodal command: a finite step of length max_move.
     out = env.step(env.reset().set("action", -EAST[None].clone()))["next", "observation"]
     assert torch.isfinite(out).all()
     torch.testing.assert_close(S2.dist(EAST, out), torch.tensor([[0.1]]), atol=1e-5, rtol=0)
@@ -86,7 +86,7 @@ def test_max_step_limits_the_motion():
 
 def test_reward_and_goal_termination():
     start = S2.expmap(NORTH, torch.tensor([0.5, 0.0, 0.0]))  # 0.5 rad from the goal
-    env = LasaSphereEnv(start, batch_size=[1], max_step=0.12, goal_tolerance=0.05, seed=0)
+    env = LasaSphereEnv(start, batch_size=[1], max_move=0.12, goal_tolerance=0.05, seed=0)
     rollout = env.rollout(50, command(NORTH))
     # Steps of 0.12 rad: 0.38, 0.26, 0.14, 0.02 -> within 0.05 of the goal after 4 steps.
     assert rollout.batch_size == (1, 4)
@@ -122,7 +122,7 @@ def test_batch_cycles_start_points_and_accepts_explicit_starts():
 
 def test_batched_rollout_all_reach_the_goal():
     starts = S2.expmap(NORTH, torch.tensor([[0.3, 0.0, 0.0], [0.0, -1.0, 0.0], [0.7, 0.7, 0.0]]))
-    env = LasaSphereEnv(starts, batch_size=[3], max_step=0.1, goal_tolerance=1e-3, seed=0)
+    env = LasaSphereEnv(starts, batch_size=[3], max_move=0.1, goal_tolerance=1e-3, seed=0)
     rollout = env.rollout(100, command(NORTH), break_when_all_done=True)
     # The farthest start (0.99 rad) needs 10 steps; finished elements are frozen, not reset.
     assert rollout.batch_size == (3, 10)
@@ -156,7 +156,7 @@ def test_multistep_actor_wrapper_executes_chunks():
 
     actor = TensorDictModule(plan, in_keys=["obs_window"], out_keys=["action"])
     policy = MultiStepActorWrapper(actor, n_steps=horizon, replan_interval=replan)
-    env = make_lasa_sphere_env(torch.stack([EAST, -EAST]), [2], max_step=0.1, seed=0)
+    env = make_lasa_sphere_env(torch.stack([EAST, -EAST]), [2], max_move=0.1, seed=0)
     rollout = env.rollout(8, policy)
     assert rollout.batch_size == (2, 8)
     assert len(calls) == 8 // replan
@@ -172,5 +172,13 @@ def test_multistep_actor_wrapper_executes_chunks():
 def test_invalid_arguments():
     with pytest.raises(ValueError, match="start_points"):
         LasaSphereEnv(torch.zeros(2, 2))
-    with pytest.raises(ValueError, match="max_step"):
+    with pytest.raises(ValueError, match="max_move"):
+        LasaSphereEnv(EAST, max_move=0.0)
+
+
+def test_the_old_max_step_keyword_still_works_with_a_deprecation_warning():
+    with pytest.warns(DeprecationWarning, match="max_step is deprecated, use max_move"):
+        env = LasaSphereEnv(EAST, batch_size=[1], max_step=0.1, seed=0)
+    assert env.max_move == 0.1
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="max_move"):
         LasaSphereEnv(EAST, max_step=0.0)

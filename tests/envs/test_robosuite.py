@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import importlib.util
+import sys
+from pathlib import Path
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -17,7 +21,13 @@ from rfmp_rl.envs.robosuite import (  # noqa: E402
     RobosuiteEnv,
     make_robosuite_env,
 )
-from rfmp_rl.envs.robosuite_experts import ExpertPolicy, generate_demos  # noqa: E402
+
+EXPERTS = Path(__file__).resolve().parents[2] / "recipes" / "robosuite" / "experts.py"
+_spec = importlib.util.spec_from_file_location("robosuite_experts", EXPERTS)
+experts = importlib.util.module_from_spec(_spec)
+sys.modules[_spec.name] = experts  # the recipe's scripted experts (recipes/ is not a package)
+_spec.loader.exec_module(experts)
+ExpertPolicy, generate_demos = experts.ExpertPolicy, experts.generate_demos
 
 TASKS = ["Lift", "PickPlaceCan", "NutAssemblySquare"]
 SPACES = ["delta", "abs_pose"]
@@ -187,3 +197,13 @@ def test_generate_demos(tmp_path):
     assert ep["obs", "robot0_eye_in_hand_image"].dtype == torch.uint8
     eef = ep["obs", "robot0_eef_pos"]
     torch.testing.assert_close(ep["next_obs", "robot0_eef_pos"][:-1], eef[1:])
+
+
+def test_the_experts_run_as_a_script_from_the_repository_root():
+    import subprocess
+
+    root = EXPERTS.parents[2]
+    result = subprocess.run([sys.executable, "recipes/robosuite/experts.py", "--help"], cwd=root,
+                            capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert "--task" in result.stdout and "--evaluate N" in result.stdout

@@ -34,7 +34,7 @@ def test_onnx_controller_matches_flowpolicy_with_multistep_wrapper(tmp_path, mak
     start = torch.nn.functional.normalize(torch.tensor([[0.3, -0.2, 0.9]]), dim=-1)
     steps = 30
 
-    env = make_lasa_sphere_env(start, batch_size=[1], max_step=0.5, goal_tolerance=0.0,
+    env = make_lasa_sphere_env(start, batch_size=[1], max_move=0.5, goal_tolerance=0.0,
                                max_steps=None, seed=0)
     actor = MultiStepActorWrapper(FlowPolicy(model, nfe=nfe, observation_key="obs_window"),
                                   n_steps=8, replan_interval=4)

@@ -166,7 +166,7 @@ def _number(value: Any) -> float:
         return math.nan
 
 
-#: The fields of a rosbag config file, in the order the README documents them.
+#: The fields of a rosbag config file, in the order rfmp_rl/data/README.md documents them.
 CONFIG_FIELDS = (
     "rate_hz", "topics", "action", "action_manifold", "observation", "observation_manifold",
     "time_reference", "segment", "max_gap_s", "on_gap",

@@ -1,5 +1,8 @@
 """Scripted experts for the robosuite tasks of `rfmp_rl.envs.robosuite`, and demo generation.
 
+Part of the robosuite recipe (not of the library): `utils.py` beside it calls `generate_demos`
+when a demonstration file is missing.
+
 `RobosuiteExpert` is a waypoint planner that reads the TRUE object pose from the simulator
 (``sim.data.body_xpos`` of the object's root body, and the nut's handle site): it picks a goal
 end-effector pose (grip-site position and a downward orientation with a yaw) and a gripper
@@ -26,9 +29,9 @@ expert back to the approach (at most ``max_regrasps`` times).
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::
 
-    python -m rfmp_rl.envs.robosuite_experts --task Lift --n 200 --action-space delta \\
+    python recipes/robosuite/experts.py --task Lift --n 200 --action-space delta \\
         [--images] --out data/robosuite/lift_delta.hdf5
-    python -m rfmp_rl.envs.robosuite_experts --task Lift --action-space abs_pose --evaluate 100
+    python recipes/robosuite/experts.py --task Lift --action-space abs_pose --evaluate 100
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import (
     OSC_POS_SCALE,
     OSC_ROT_SCALE,
@@ -158,7 +162,7 @@ class RobosuiteExpert:
         expert.reset(env.sims[0])
         while not td["done"].any():
             action = torch.as_tensor(expert.act(env.sims[0]), dtype=torch.float32)[None]
-            td = env.step(td.set("action", action))["next"]
+            td = env.step(td.set(keys.ACTION, action))["next"]
         td["success"].item()  # True
     """
 
@@ -515,7 +519,7 @@ class ExpertPolicy:
             actions.append(expert.act(sim))
         action = torch.as_tensor(np.stack(actions), dtype=torch.float32,
                                  device=tensordict.device)
-        return tensordict.set("action", action)
+        return tensordict.set(keys.ACTION, action)
 
 
 def _run_episode(env: RobosuiteEnv, expert: RobosuiteExpert, seed: int,
@@ -531,12 +535,12 @@ def _run_episode(env: RobosuiteEnv, expert: RobosuiteExpert, seed: int,
     while True:
         state = np.array(sim.sim.get_state().flatten())
         action = torch.as_tensor(expert.act(sim), dtype=torch.float32)[None]
-        out = env.step(td.set("action", action))
+        out = env.step(td.set(keys.ACTION, action))
         nxt = out["next"]
         steps.append({
             "obs": {k: td[k][0].clone() for k in obs_keys},
             "next_obs": {k: nxt[k][0].clone() for k in obs_keys},
-            "action": action[0].clone(),
+            keys.ACTION: action[0].clone(),
             "reward": nxt["reward"][0].clone(),
             "done": nxt["done"][0].clone(),
             "states": torch.as_tensor(state),
