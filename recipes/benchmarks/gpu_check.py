@@ -201,7 +201,8 @@ def run_setting(setting: Setting, device: str, data: TaskData, workdir: Path,
         train=TrainConfig(steps=setting.steps, batch_size=setting.batch,
                           val_every=10 * setting.steps, val_batches=1,
                           log_every=10 * setting.steps, checkpoint_every=10 * setting.steps),
-        logger=LoggerConfig(backend="none"), camera_keys=data.camera_keys, progress=False)
+        logger=LoggerConfig(backend="none"), camera_keys=data.camera_keys, progress=False,
+        control_rate_hz=10.0)  # Push-T's rate, for the exported metadata
     try:
         result = trainer.fit()
         peak = torch.cuda.max_memory_allocated(runtime.device) / 1e9 if cuda else None

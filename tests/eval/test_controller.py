@@ -110,7 +110,8 @@ def test_t_o_4_pusht_policy_acts_the_same_in_pytorch_and_through_the_onnx_contro
     from rfmp_deploy import Controller, Policy
 
     policy = _train(DemonstrationStore.from_episodes(_episodes()))
-    checkpoint = save_checkpoint(tmp_path / "ckpt.pt", policy, solver=policy.solver)
+    checkpoint = save_checkpoint(tmp_path / "ckpt.pt", policy, solver=policy.solver,
+                                 control_rate_hz=10.0)
     _export(checkpoint, tmp_path / "policy.onnx")
 
     controller = Controller(Policy(tmp_path / "policy.onnx", intra_op_threads=1),

@@ -58,7 +58,7 @@ def test_t_o_4_graph_matches_flowpolicy_on_the_window_and_gap(tmp_path, algorith
 
     model = _model(algorithm, cameras)
     nfe = 2
-    report = export_onnx(model, tmp_path / "p.onnx", nfe=nfe, latency_runs=1)
+    report = export_onnx(model, tmp_path / "p.onnx", nfe=nfe, latency_runs=1, control_rate_hz=10.0)
     assert report.max_abs_diff <= PARITY_LIMITS["fp32"]
     meta = {p.key: p.value for p in onnx.load(str(tmp_path / "p.onnx")).metadata_props}
     assert meta["obs_horizon"] == str(T_O)
