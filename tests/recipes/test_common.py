@@ -44,17 +44,17 @@ def test_groups_map_one_to_one_onto_the_dataclasses(recipe):
     assert set(cfg.eval) == set(EvalConfig.__dataclass_fields__)
     model = common.model_config(cfg, action_manifold="R2", obs_dim=3)
     assert (model.algorithm, model.horizon, model.action_steps) == ("srfmp", 8, 4)
-    assert common.loss_config(cfg)["time_max"] == 2.0 and common.eval_config(cfg).seeds == 50
+    assert common.loss_config(cfg).time_max == 2.0 and common.eval_config(cfg).seeds == 50
     assert "model.horizon" in common.fixed_settings(cfg, ("obs",))
     assert "loss.t0_fraction" in common.fixed_settings(cfg, ("obs",))
 
 
 def test_loss_options_of_other_algorithms_stay_neutral():
     cfg = compose("pusht", ["algo=rfmp", "loss.time_max=2.0", "loss.t0_fraction=0.3"])
-    assert common.loss_config(cfg)["time_max"] == 1.0  # SRFMP's option
-    assert common.loss_config(cfg)["t0_fraction"] == 0.3
+    assert common.loss_config(cfg).time_max == 1.0  # SRFMP's option
+    assert common.loss_config(cfg).t0_fraction == 0.3
     cfg = compose("pusht", ["algo=ddim", "loss.t0_fraction=0.3"])
-    assert common.loss_config(cfg)["t0_fraction"] == 0.0  # the flows' option
+    assert common.loss_config(cfg).t0_fraction == 0.0  # the flows' option
 
 
 def test_bad_groups_and_algorithms_are_named():
