@@ -39,6 +39,11 @@ RENAMED = {
     "lambda_tau": "loss.lambda_tau", "time_max": "loss.time_max",
     "t0_fraction": "loss.t0_fraction",
 }
+#: Group settings of earlier versions that moved to another group.
+MOVED = {
+    "train.select_seeds": "select.seeds", "train.select_seed_start": "select.seed_start",
+    "train.select_nfe": "select.nfe", "train.select_t_end": "select.t_end",
+}
 #: Algorithm names of earlier versions -> the library's.
 RENAMED_ALGOS = {"dp": "ddim"}
 #: ModelConfig fields a task derives from its own settings (never set in ``model:``).
@@ -60,6 +65,8 @@ def upgrade_argv(argv: Sequence[str]) -> list[str]:
         new = arg
         if eq and name in RENAMED:
             new = f"{prefix}{RENAMED[name]}={value}"
+        elif eq and name in MOVED:
+            new = f"{prefix}{MOVED[name]}={value}"
         elif eq and name == "algo" and value in RENAMED_ALGOS:
             new = f"{key}={RENAMED_ALGOS[value]}"
         if new != arg:
@@ -78,6 +85,12 @@ def upgrade_config(config: Mapping[str, Any]) -> dict:
             group, name = new.split(".")
             config.setdefault(group, {})
             config[group] = {**config[group], name: config.pop(old)}
+    for old, new in MOVED.items():
+        (old_group, old_name), (group, name) = old.split("."), new.split(".")
+        if old_name in (config.get(old_group) or {}):
+            moved = dict(config[old_group])
+            config[group] = {**(config.get(group) or {}), name: moved.pop(old_name)}
+            config[old_group] = moved
     if config.get("algo") in RENAMED_ALGOS:
         config["algo"] = RENAMED_ALGOS[config["algo"]]
     if isinstance(config.get("logger"), str):  # logger=csv: the backend alone
@@ -329,10 +342,11 @@ def solver_config(model, nfe: int, t_end: float) -> SolverConfig:
 
 
 def run_solver(cfg: DictConfig) -> SolverConfig:
-    """The solver a run selects with (``train.select_nfe`` / ``select_t_end``; else the first
-    evaluation NFE at T = 1): stored in its checkpoints."""
-    nfe = cfg.train.get("select_nfe") or cfg.eval.nfes[0]
-    return SolverConfig(nfe=int(nfe), t_end=float(cfg.train.get("select_t_end") or 1.0))
+    """The solver a run selects with (``select.nfe`` / ``select.t_end`` of a recipe with rollout
+    selection; else the first evaluation NFE at T = 1): stored in its checkpoints."""
+    select = cfg.get("select") or {}
+    nfe = select.get("nfe") or cfg.eval.nfes[0]
+    return SolverConfig(nfe=int(nfe), t_end=float(select.get("t_end") or 1.0))
 
 
 def make_actor(model, nfe: int, t_end: float, observation_key=keys.OBS_WINDOW,

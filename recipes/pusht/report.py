@@ -125,9 +125,9 @@ def main(argv: list[str] | None = None) -> str:
         last = history[-1]
         if by_rollout:
             chosen = (f"best validation rollout score {best['rollout']:.3f} (mean max coverage "
-                      f"over seeds {cfg['train']['select_seed_start']}-"
-                      f"{cfg['train']['select_seed_start'] + cfg['train']['select_seeds'] - 1}, "
-                      f"NFE {cfg['train']['select_nfe']}, T={cfg['train']['select_t_end']:g})")
+                      f"over seeds {cfg['select']['seed_start']}-"
+                      f"{cfg['select']['seed_start'] + cfg['select']['seeds'] - 1}, "
+                      f"NFE {cfg['select']['nfe']}, T={cfg['select']['t_end']:g})")
         else:
             chosen = f"best validation loss {best['val']:.4f}"
         _read(run / "eval" / "eval.csv", "eval.py's table")

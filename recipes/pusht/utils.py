@@ -54,12 +54,12 @@ def check_config(cfg: DictConfig) -> None:
                          f"{train.select_by!r}")
     check_runtime_config(cfg)
     if train.get("select_by") == "rollout":
-        chosen = range(int(train.select_seed_start),
-                       int(train.select_seed_start) + int(train.select_seeds))
+        start = int(cfg.select.seed_start)
+        chosen = range(start, start + int(cfg.select.seeds))
         tested = range(int(cfg.eval.seed_start), int(cfg.eval.seed_start) + int(cfg.eval.seeds))
         if len(chosen) < 1 or (chosen.start < tested.stop and tested.start < chosen.stop):
             raise ValueError(
-                f"train.select_seeds/select_seed_start give seeds {chosen.start}-{chosen.stop - 1}"
+                f"select.seeds/select.seed_start give seeds {chosen.start}-{chosen.stop - 1}"
                 f", which must be at least one and must not overlap the evaluation seeds "
                 f"{tested.start}-{tested.stop - 1} (eval.seed_start, eval.seeds)")
 
@@ -177,13 +177,14 @@ def eval_task(cfg: DictConfig) -> TaskEval:
 
 def selection_score(cfg: DictConfig):
     """``train.select_by=rollout``: the function `fit` calls on the EMA model at every
-    validation, the mean max coverage over the selection seeds at ``train.select_nfe`` /
-    ``select_t_end`` (seeds disjoint from the evaluation ones, `check_config`); else None."""
+    validation, the mean max coverage over the selection seeds at ``select.nfe`` /
+    ``select.t_end`` (seeds disjoint from the evaluation ones, `check_config`); else None."""
     if cfg.train.get("select_by", "val_loss") != "rollout":
         return None
-    chosen = replace(eval_config(cfg), seeds=int(cfg.train.select_seeds),
-                     seed_start=int(cfg.train.select_seed_start), num_envs=None)
-    nfe, t_end, task = int(cfg.train.select_nfe), float(cfg.train.select_t_end), eval_task(cfg)
+    select = cfg.select
+    chosen = replace(eval_config(cfg), seeds=int(select.seeds), seed_start=int(select.seed_start),
+                     num_envs=None)
+    nfe, t_end, task = int(select.nfe), float(select.t_end), eval_task(cfg)
 
     def score(model) -> float:
         result = evaluate(task.env_fn, model, lambda n, t: task.make_actor(model, n, t), nfe,

@@ -11,22 +11,26 @@ from recipe_loader import ROOT, compose  # noqa: F401  (puts this checkout's rec
 from recipes import common
 from rfmp_rl.eval import EvalConfig
 from rfmp_rl.modules import ModelConfig
+from rfmp_rl.training import OptimConfig, TrainConfig
 
 
 def test_old_command_lines_are_renamed():
     argv = ["train.py", "horizon=8", "t0_fraction=0.3", "+prior=wrapped", "algo=dp",
-            "optim.lr=1e-3", "preset=paper", "eval.seeds=3"]
+            "optim.lr=1e-3", "preset=paper", "eval.seeds=3", "train.select_seeds=50"]
     assert common.upgrade_argv(argv) == [
         "train.py", "model.horizon=8", "loss.t0_fraction=0.3", "+model.prior_sphere=wrapped",
-        "algo=ddim", "optim.lr=1e-3", "model.unet_preset=paper", "eval.seeds=3"]
+        "algo=ddim", "optim.lr=1e-3", "model.unet_preset=paper", "eval.seeds=3", "select.seeds=50"]
 
 
 def test_old_configs_move_into_the_groups():
     old = {"algo": "dp", "horizon": 16, "obs_horizon": 2, "preset": "small", "prior": "uniform",
            "lambda_x": 2.5, "time_max": 2.0, "t0_fraction": 0.5, "logger": "csv",
-           "optim": {"lr": 1e-3}}
+           "optim": {"lr": 1e-3}, "train": {"steps": 5, "select_by": "rollout",
+                                             "select_seeds": 50, "select_t_end": 1.0}}
     new = common.upgrade_config(old)
     assert new["algo"] == "ddim" and new["optim"] == {"lr": 1e-3}
+    assert new["train"] == {"steps": 5, "select_by": "rollout"}
+    assert new["select"] == {"seeds": 50, "t_end": 1.0}
     assert new["model"] == {"horizon": 16, "obs_horizon": 2, "unet_preset": "small",
                             "prior_sphere": "uniform"}
     assert new["loss"] == {"lambda_x": 2.5, "time_max": 2.0, "t0_fraction": 0.5}
@@ -42,6 +46,8 @@ def test_groups_map_one_to_one_onto_the_dataclasses(recipe):
     assert set(cfg.model) <= names and not set(cfg.model) & set(common.TASK_MODEL_FIELDS)
     assert set(cfg.loss) == set(common.LOSS_FIELDS)
     assert set(cfg.eval) == set(EvalConfig.__dataclass_fields__)
+    assert set(cfg.train) <= set(TrainConfig.__dataclass_fields__)
+    assert set(cfg.optim) == set(OptimConfig.__dataclass_fields__)
     model = common.model_config(cfg, action_manifold="R2", obs_dim=3)
     assert (model.algorithm, model.horizon, model.action_steps) == ("srfmp", 8, 4)
     assert common.loss_config(cfg).time_max == 2.0 and common.eval_config(cfg).seeds == 50

@@ -126,7 +126,7 @@ def test_rollout_selection_keeps_the_checkpoint_with_the_best_selection_score(re
     # Diffusion Policy keeps checkpoints by rollout score; ours rolls the EMA policy out on
     # seeds disjoint from the evaluation ones at every validation.
     cfg = _cfg(["algo=srfmp", f"out_dir={tmp_path}", *TINY, "train.steps=3",
-                "train.select_by=rollout", "train.select_seeds=2", "train.select_seed_start=5",
+                "train.select_by=rollout", "select.seeds=2", "select.seed_start=5",
                 "eval.final_eval=false"])
     run = recipe["train"].train(cfg)
     history = json.loads((run / "history.json").read_text())
@@ -145,7 +145,7 @@ def test_rollout_selection_keeps_the_checkpoint_with_the_best_selection_score(re
 
 
 def test_rollout_selection_seeds_must_not_overlap_the_evaluation_seeds(recipe):
-    cfg = _cfg(["train.select_by=rollout", "train.select_seed_start=100040"])
+    cfg = _cfg(["train.select_by=rollout", "select.seed_start=100040"])
     with pytest.raises(ValueError, match=r"100040-100059.*overlap.*100000-100049"):
         recipe["utils"].check_config(cfg)
     with pytest.raises(ValueError, match="train.select_by"):
