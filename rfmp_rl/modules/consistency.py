@@ -1,0 +1,132 @@
+"""The Consistency Policy student (Prasad et al. 2024): a consistency model (Song et al. 2023)
+distilled from a Diffusion Policy (DDIM) teacher, sampling in one network evaluation.
+
+The student shares the teacher's noise schedule, forward process, UNet and normalisers; only what
+its network's output means differs. Time is the teacher's diffusion step ``k`` (0 .. K - 1), with
+``k = -1`` standing for the clean end of the teacher's DDIM trajectories (noise level 0). The
+consistency function maps a noisy chunk ``x_k`` straight to that end::
+
+    f(x_k, k) = c_skip(k) y_k + c_out(k) F(x_k, k),    y_k = x_k / sqrt(ab_k),
+    c_skip = 1,  c_out = -sigma_k = -sqrt(1 - ab_k) / sqrt(ab_k),
+
+in the teacher's normalised action space (``ab_k`` the cumulative product of the schedule, with
+``ab_{-1} = 1``). At ``k = -1`` ``c_out = 0``, so ``f(x, -1) = x`` holds by construction (the
+boundary condition). With ``F`` the teacher's noise prediction, ``f`` is the teacher's one-step
+estimate of the clean chunk, so a student initialised from the teacher's weights
+(`ConsistencyModel.from_teacher`, as Consistency Policy does) starts as the teacher's DDIM at one
+step; `rfmp_rl.objectives.ConsistencyDistillationLoss` then makes it consistent along the
+teacher's trajectories.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+
+from rfmp_rl.modules.policy_model import DiffusionModel, ModelConfig, unwrap_policy_model
+
+__all__ = ["ConsistencyModel"]
+
+
+class ConsistencyModel(DiffusionModel):
+    """Consistency Policy student (``ModelConfig.algorithm='cp'``).
+
+    ``sample(cond, noise, nfe=1)`` evaluates the consistency function once at the largest
+    diffusion step ``K - 1`` (one-step generation). With ``nfe > 1`` it runs multistep consistency
+    sampling (Song et al. 2023, Algorithm 1) on the steps `consistency_timesteps`: denoise,
+    re-noise the estimate to the next smaller step, denoise again. The re-noising reuses the one
+    prior draw ``noise`` (the only noise input of the policy and of its ONNX graph), so a sample
+    is a deterministic function of its prior noise, as for DDIM; Song et al. draw fresh noise at
+    every re-noising. The estimate is clipped to ``[-1, 1]`` after every evaluation when
+    ``clip_sample`` (as DDIM clips its clean-sample estimate), and the chunk is projected onto the
+    action manifold at the end.
+
+    Example:
+        >>> teacher = DiffusionModel(ModelConfig(algorithm="ddim", action_manifold="R2",
+        ...                                      obs_dim=3, horizon=4, down_dims=[32, 64]))
+        >>> student = ConsistencyModel.from_teacher(teacher)
+        >>> student.cfg.algorithm, student.consistency_timesteps(3)
+        ('cp', [99, 66, 33])
+        >>> student.sample(student.encode(torch.randn(5, 2, 3)), nfe=1).shape
+        torch.Size([5, 4, 2])
+    """
+
+    def __init__(self, cfg: ModelConfig) -> None:
+        if cfg.algorithm != "cp":
+            raise ValueError(f"ConsistencyModel needs ModelConfig.algorithm='cp', got "
+                             f"{cfg.algorithm!r}")
+        super().__init__(cfg)
+
+    @classmethod
+    def from_teacher(cls, teacher: Any) -> ConsistencyModel:
+        """A student with the teacher's architecture, weights and normalisers (its config with
+        ``algorithm='cp'``), on the teacher's device. ``teacher``: a `DiffusionModel`
+        (``algorithm='ddim'``), a `FlowPolicy` or a wrapper of one."""
+        teacher = unwrap_policy_model(teacher, "ConsistencyModel.from_teacher")
+        if teacher.cfg.algorithm != "ddim":
+            raise TypeError(f"ConsistencyModel.from_teacher: the teacher must be a Diffusion "
+                            f"Policy (algorithm 'ddim'), got algorithm {teacher.cfg.algorithm!r}")
+        cfg = ModelConfig.from_dict({**teacher.cfg.to_dict(), "algorithm": "cp"})
+        student = cls(cfg).to(teacher.alphas_cumprod.device)
+        student.load_state_dict(teacher.state_dict())
+        return student
+
+    # ----- the consistency function ----------------------------------------------------------
+    def alpha_bar(self, k: torch.Tensor) -> torch.Tensor:
+        """``ab_k`` ``(B, 1)`` for integer steps ``k (B,)``; 1 at ``k = -1`` (the clean end)."""
+        k = k.long()
+        ab = self.alphas_cumprod[k.clamp_min(0)]
+        return torch.where(k >= 0, ab, torch.ones_like(ab)).unsqueeze(-1)
+
+    def consistency(self, x: torch.Tensor, k: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
+        """``f(x_k, k)``: the clean end of the trajectory through the flat normalised chunk
+        ``x (B, T_p * D)`` at diffusion steps ``k (B,)`` (``-1``: clean, where ``f(x) = x``)."""
+        ab = self.alpha_bar(k).to(x.dtype)
+        out = self.predict_noise(x, k.clamp_min(0).to(x.dtype), cond)
+        c_out = -(1 - ab).sqrt() / ab.sqrt()
+        return x / ab.sqrt() + c_out * out
+
+    # ----- sampling --------------------------------------------------------------------------
+    def consistency_timesteps(self, nfe: int) -> list[int]:
+        """The diffusion steps multistep sampling evaluates at: ``K - 1`` first, then evenly
+        spaced down (``nfe = 3``, ``K = 100``: 99, 66, 33)."""
+        total = self.cfg.num_diffusion_steps
+        if not 1 <= nfe <= total:
+            raise ValueError(f"consistency sampling NFE must be in [1, {total}], got {nfe}")
+        return [(total - 1) * (nfe - i) // nfe for i in range(nfe)]
+
+    def ddim_timesteps(self, nfe: int) -> list[int]:
+        """The steps `sample` evaluates at (`consistency_timesteps`; `FlowPolicy` checks the
+        budget through this name)."""
+        return self.consistency_timesteps(nfe)
+
+    def sample(
+        self,
+        cond: torch.Tensor,
+        noise: torch.Tensor | None = None,
+        *,
+        nfe: int = 1,
+        deterministic: bool = False,
+        **unused: Any,
+    ) -> torch.Tensor:
+        batch = cond.shape[0]
+        if deterministic:
+            z = torch.zeros(batch, self.noise_dim, dtype=cond.dtype, device=cond.device)
+        elif noise is None:
+            z = torch.randn(batch, self.noise_dim, dtype=cond.dtype, device=cond.device)
+        else:
+            if noise.shape[-1] != self.noise_dim:
+                raise ValueError(f"consistency sampling noise must have last dimension "
+                                 f"{self.noise_dim}, got {tuple(noise.shape)}")
+            z = noise
+        x, estimate = z, z
+        for i, k in enumerate(self.consistency_timesteps(nfe)):
+            if i:  # re-noise the estimate to step k with the prior draw
+                ab = self.alphas_cumprod[k]
+                x = ab.sqrt() * estimate + (1 - ab).sqrt() * z
+            steps = torch.full((batch,), k, dtype=torch.long, device=cond.device)
+            estimate = self.consistency(x, steps, cond)
+            if self.cfg.clip_sample:
+                estimate = estimate.clamp(-1.0, 1.0)
+        return self.unnormalize_action(self.chunk.projx(estimate))
