@@ -4,18 +4,25 @@ distilled from a Diffusion Policy (DDIM) teacher, sampling in one network evalua
 The student shares the teacher's noise schedule, forward process, UNet and normalisers; only what
 its network's output means differs. Time is the teacher's diffusion step ``k`` (0 .. K - 1), with
 ``k = -1`` standing for the clean end of the teacher's DDIM trajectories (noise level 0). The
-consistency function maps a noisy chunk ``x_k`` straight to that end::
+consistency function maps a noisy chunk ``x_k`` straight to that end, with Song et al.'s
+parameterisation (their Eq. 6 form, ``sigma_data = 1``, ``sigma_min = 0``) written in the
+teacher's variables::
 
-    f(x_k, k) = c_skip(k) y_k + c_out(k) F(x_k, k),    y_k = x_k / sqrt(ab_k),
-    c_skip = 1,  c_out = -sigma_k = -sqrt(1 - ab_k) / sqrt(ab_k),
+    f(x_k, k) = c_skip(k) y_k + c_out(k) F(x_k, k),     y_k = x_k / sqrt(ab_k),
+    c_skip = 1 / (1 + sigma_k^2) = ab_k,   c_out = sigma_k / sqrt(1 + sigma_k^2) = sqrt(1 - ab_k),
+    so  f(x_k, k) = sqrt(ab_k) x_k + sqrt(1 - ab_k) F(x_k, k),
 
-in the teacher's normalised action space (``ab_k`` the cumulative product of the schedule, with
-``ab_{-1} = 1``). At ``k = -1`` ``c_out = 0``, so ``f(x, -1) = x`` holds by construction (the
-boundary condition). With ``F`` the teacher's noise prediction, ``f`` is the teacher's one-step
-estimate of the clean chunk, so a student initialised from the teacher's weights
-(`ConsistencyModel.from_teacher`, as Consistency Policy does) starts as the teacher's DDIM at one
-step; `rfmp_rl.objectives.ConsistencyDistillationLoss` then makes it consistent along the
-teacher's trajectories.
+in the teacher's normalised action space (``ab_k`` the cumulative product of the schedule,
+``sigma_k = sqrt(1 - ab_k) / sqrt(ab_k)`` the DDIM noise level, ``ab_{-1} = 1``). At ``k = -1``
+``c_skip = 1`` and ``c_out = 0``, so ``f(x, -1) = x`` holds by construction (the boundary
+condition). The network sees the teacher's input ``x_k = y_k / sqrt(1 + sigma_k^2)`` and step
+``k``. This form is well conditioned at every step: at the largest ones (``ab_99 = 2.4e-7``) ``f``
+is the network's output itself, where the teacher's clean estimate
+``(x_k - sqrt(1 - ab_k) eps) / sqrt(ab_k)`` would amplify any error of ``eps`` 2000-fold.
+`ConsistencyModel.from_teacher` initialises the student with the teacher's weights (as Consistency
+Policy does): its features start as the teacher's, its output head learns the new meaning;
+`rfmp_rl.objectives.ConsistencyDistillationLoss` makes it consistent along the teacher's
+trajectories.
 """
 
 from __future__ import annotations
@@ -61,7 +68,8 @@ class ConsistencyModel(DiffusionModel):
     @classmethod
     def from_teacher(cls, teacher: Any) -> ConsistencyModel:
         """A student with the teacher's architecture, weights and normalisers (its config with
-        ``algorithm='cp'``), on the teacher's device. ``teacher``: a `DiffusionModel`
+        ``algorithm='cp'``), on the teacher's device (its output head then learns the
+        consistency parameterisation of the module docstring). ``teacher``: a `DiffusionModel`
         (``algorithm='ddim'``), a `FlowPolicy` or a wrapper of one."""
         teacher = unwrap_policy_model(teacher, "ConsistencyModel.from_teacher")
         if teacher.cfg.algorithm != "ddim":
@@ -82,10 +90,9 @@ class ConsistencyModel(DiffusionModel):
     def consistency(self, x: torch.Tensor, k: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         """``f(x_k, k)``: the clean end of the trajectory through the flat normalised chunk
         ``x (B, T_p * D)`` at diffusion steps ``k (B,)`` (``-1``: clean, where ``f(x) = x``)."""
-        ab = self.alpha_bar(k).to(x.dtype)
-        out = self.predict_noise(x, k.clamp_min(0).to(x.dtype), cond)
-        c_out = -(1 - ab).sqrt() / ab.sqrt()
-        return x / ab.sqrt() + c_out * out
+        ab = self.alpha_bar(k).to(x.dtype)  # (B, 1)
+        out = self.predict_noise(x, k.clamp_min(0).to(x.dtype), cond)  # (B, T_p * D)
+        return ab.sqrt() * x + (1 - ab).sqrt() * out
 
     # ----- sampling --------------------------------------------------------------------------
     def consistency_timesteps(self, nfe: int) -> list[int]:

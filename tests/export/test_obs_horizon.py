@@ -52,7 +52,7 @@ def _flow_policy(model, inputs: dict[str, torch.Tensor], gap: float, nfe: int) -
 
 
 @pytest.mark.parametrize(("algorithm", "cameras"), [("srfmp", False), ("ddim", False),
-                                                    ("srfmp", True)])
+                                                    ("cp", False), ("srfmp", True)])
 def test_t_o_4_graph_matches_flowpolicy_on_the_window_and_gap(tmp_path, algorithm, cameras):
     from rfmp_deploy import Policy
 
