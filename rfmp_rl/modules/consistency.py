@@ -42,12 +42,13 @@ class ConsistencyModel(DiffusionModel):
     ``sample(cond, noise, nfe=1)`` evaluates the consistency function once at the largest
     diffusion step ``K - 1`` (one-step generation). With ``nfe > 1`` it runs multistep consistency
     sampling (Song et al. 2023, Algorithm 1) on the steps `consistency_timesteps`: denoise,
-    re-noise the estimate to the next smaller step, denoise again. The re-noising reuses the one
-    prior draw ``noise`` (the only noise input of the policy and of its ONNX graph), so a sample
-    is a deterministic function of its prior noise, as for DDIM; Song et al. draw fresh noise at
-    every re-noising. The estimate is clipped to ``[-1, 1]`` after every evaluation when
-    ``clip_sample`` (as DDIM clips its clean-sample estimate), and the chunk is projected onto the
-    action manifold at the end.
+    re-noise the estimate to the next smaller step with a fresh standard-normal draw, denoise
+    again. ``noise`` ``(B, n * noise_dim)`` holds the start draw followed by up to ``nfe - 1``
+    re-noising draws; those not given are drawn with torch (zeros under ``deterministic``). The
+    ONNX graph at NFE ``n`` takes all ``n`` draws (`prior_noise_dim`), so it computes exactly
+    what the policy computes from the same draws. The estimate is clipped to ``[-1, 1]`` after
+    every evaluation when ``clip_sample`` (as DDIM clips its clean-sample estimate), and the
+    chunk is projected onto the action manifold at the end.
 
     Example:
         >>> teacher = DiffusionModel(ModelConfig(algorithm="ddim", action_manifold="R2",
@@ -103,6 +104,10 @@ class ConsistencyModel(DiffusionModel):
             raise ValueError(f"consistency sampling NFE must be in [1, {total}], got {nfe}")
         return [(total - 1) * (nfe - i) // nfe for i in range(nfe)]
 
+    def prior_noise_dim(self, nfe: int) -> int:
+        """One draw per evaluation: ``nfe * noise_dim``."""
+        return int(nfe) * self.noise_dim
+
     def ddim_timesteps(self, nfe: int) -> list[int]:
         """The steps `sample` evaluates at (`consistency_timesteps`; `FlowPolicy` checks the
         budget through this name)."""
@@ -117,23 +122,29 @@ class ConsistencyModel(DiffusionModel):
         deterministic: bool = False,
         **unused: Any,
     ) -> torch.Tensor:
-        batch = cond.shape[0]
+        batch, width = cond.shape[0], self.noise_dim
+        steps = self.consistency_timesteps(nfe)
+        like = {"dtype": cond.dtype, "device": cond.device}
         if deterministic:
-            z = torch.zeros(batch, self.noise_dim, dtype=cond.dtype, device=cond.device)
+            noise = torch.zeros(batch, nfe * width, **like)
         elif noise is None:
-            z = torch.randn(batch, self.noise_dim, dtype=cond.dtype, device=cond.device)
+            noise = torch.randn(batch, nfe * width, **like)
         else:
-            if noise.shape[-1] != self.noise_dim:
-                raise ValueError(f"consistency sampling noise must have last dimension "
-                                 f"{self.noise_dim}, got {tuple(noise.shape)}")
-            z = noise
-        x, estimate = z, z
-        for i, k in enumerate(self.consistency_timesteps(nfe)):
-            if i:  # re-noise the estimate to step k with the prior draw
+            given = noise.shape[-1]
+            if given % width or not 1 <= given // width <= nfe:
+                raise ValueError(f"consistency sampling at NFE {nfe} takes 1 to {nfe} prior draws "
+                                 f"of {width} (last dimension {width}, ..., {nfe * width}), got "
+                                 f"{tuple(noise.shape)}")
+            if given < nfe * width:  # the re-noising draws not given
+                noise = torch.cat([noise, torch.randn(batch, nfe * width - given, **like)], -1)
+        draws = noise.unflatten(-1, (nfe, width))  # (B, nfe, noise_dim)
+        x = estimate = draws[:, 0]
+        for i, k in enumerate(steps):
+            if i:  # re-noise the estimate to step k with a fresh draw
                 ab = self.alphas_cumprod[k]
-                x = ab.sqrt() * estimate + (1 - ab).sqrt() * z
-            steps = torch.full((batch,), k, dtype=torch.long, device=cond.device)
-            estimate = self.consistency(x, steps, cond)
+                x = ab.sqrt() * estimate + (1 - ab).sqrt() * draws[:, i]
+            k_in = torch.full((batch,), k, dtype=torch.long, device=cond.device)
+            estimate = self.consistency(x, k_in, cond)
             if self.cfg.clip_sample:
                 estimate = estimate.clamp(-1.0, 1.0)
         return self.unnormalize_action(self.chunk.projx(estimate))

@@ -329,6 +329,12 @@ class PolicyModel(nn.Module):
         """Size of the standard-normal prior noise per sample."""
         raise NotImplementedError
 
+    def prior_noise_dim(self, nfe: int) -> int:
+        """Width of the standard-normal prior noise a sample with ``nfe`` evaluations takes (the
+        ONNX graph's ``prior_noise`` input): `noise_dim` (CP's multistep sampling, one draw per
+        evaluation)."""
+        return self.noise_dim
+
 
 class FlowModel(PolicyModel):
     """RFMP (geodesic path, Eq. 6) or SRFMP (stable path with pseudo-time, Eqs. 17-18).

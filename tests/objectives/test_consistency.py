@@ -264,7 +264,7 @@ def test_a_student_that_does_not_match_its_teacher_is_refused(make_tiny_model):
 
 
 # ----- the student: sampling, checkpoint, export -------------------------------------------------
-def test_multistep_sampling_denoises_renoises_with_the_prior_draw_and_denoises(make_tiny_model):
+def test_multistep_sampling_denoises_renoises_with_a_fresh_draw_and_denoises(make_tiny_model):
     _, student = teacher_and_student(make_tiny_model)
     student.eval()
     assert student.consistency_timesteps(1) == [99]
@@ -272,16 +272,33 @@ def test_multistep_sampling_denoises_renoises_with_the_prior_draw_and_denoises(m
     assert student.consistency_timesteps(100) == list(range(99, -1, -1))
     with pytest.raises(ValueError, match=r"NFE must be in \[1, 100\]"):
         student.consistency_timesteps(0)
-    cond, z = torch.randn(3, student.obs_encoder.out_dim), torch.randn(3, student.noise_dim)
+    dim = student.noise_dim
+    assert (student.prior_noise_dim(1), student.prior_noise_dim(3)) == (dim, 3 * dim)
+    cond, draws = torch.randn(3, student.obs_encoder.out_dim), torch.randn(3, 2 * dim)
+    z, xi = draws[:, :dim], draws[:, dim:]
     with torch.no_grad():
         first = student.consistency(z, torch.full((3,), 99), cond).clamp(-1, 1)
         ab = student.alphas_cumprod[49]
-        second = student.consistency(ab.sqrt() * first + (1 - ab).sqrt() * z,
+        second = student.consistency(ab.sqrt() * first + (1 - ab).sqrt() * xi,
                                      torch.full((3,), 49), cond).clamp(-1, 1)
         torch.testing.assert_close(student.sample(cond, z, nfe=1),
                                    student.unnormalize_action(student.chunk.projx(first)))
-        torch.testing.assert_close(student.sample(cond, z, nfe=2),
+        torch.testing.assert_close(student.sample(cond, draws, nfe=2),
                                    student.unnormalize_action(student.chunk.projx(second)))
+        # the start draw alone: the re-noising draw comes from torch's generator
+        torch.manual_seed(5)
+        partial = student.sample(cond, z, nfe=2)
+        torch.manual_seed(5)
+        fresh = torch.randn(3, dim)
+        torch.testing.assert_close(partial, student.sample(cond, torch.cat([z, fresh], -1),
+                                                           nfe=2))
+        # deterministic: every draw zero
+        zeros = torch.zeros(3, 2 * dim)
+        torch.testing.assert_close(student.sample(cond, deterministic=True, nfe=2),
+                                   student.sample(cond, zeros, nfe=2))
+    for bad in (torch.randn(3, dim + 1), torch.randn(3, 3 * dim)):
+        with pytest.raises(ValueError, match=r"NFE 2 takes 1 to 2 prior draws"):
+            student.sample(cond, bad, nfe=2)
 
 
 def test_the_student_checkpoint_loads_and_acts_without_the_teacher(tmp_path, make_tiny_model):
@@ -318,8 +335,9 @@ def test_the_exported_graph_equals_the_pytorch_policy(tmp_path, make_tiny_model,
     assert (report.metadata["algorithm"], report.metadata["nfe"],
             report.metadata["method"]) == ("cp", str(nfe), "consistency")
     session = ort.InferenceSession(str(tmp_path / "cp.onnx"), providers=["CPUExecutionProvider"])
-    obs, noise = torch.randn(4, 2, 3, generator=gen) * 4, torch.randn(4, student.noise_dim,
-                                                                        generator=gen)
+    assert report.metadata["noise"].count(f'"dim": {student.prior_noise_dim(nfe)}') == 1
+    obs = torch.randn(4, 2, 3, generator=gen) * 4
+    noise = torch.randn(4, student.prior_noise_dim(nfe), generator=gen)  # one draw per NFE
     got = session.run(["action"], {"observation": obs.numpy(), "prior_noise": noise.numpy()})[0]
     with torch.no_grad():
         graph = InferenceGraph(student, nfe=nfe)(obs, noise)
