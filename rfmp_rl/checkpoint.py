@@ -178,6 +178,8 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     payload["model_config"] = model_cfg
     if payload.get("loss") is None:
         payload["loss"] = loss
+    if payload["loss"] is not None:  # options added since it was written: their defaults
+        payload["loss"] = {**LossConfig().to_dict(), **payload["loss"]}
     if payload.get("control_rate_hz") is None:
         payload["control_rate_hz"] = rate
     return payload

@@ -346,3 +346,16 @@ def test_the_exported_graph_equals_the_pytorch_policy(tmp_path, make_tiny_model,
     torch.testing.assert_close(graph, policy)
     np.testing.assert_allclose(got, policy.numpy(), atol=1e-4 * float(
         student.action_normalizer.scale.max()), rtol=0)
+
+
+def test_a_checkpoint_written_before_the_teacher_options_reads_with_their_defaults(tmp_path,
+                                                                                   make_tiny_model):
+    path = save_checkpoint(tmp_path / "old.pt", make_tiny_model("srfmp"),
+                           loss=LossConfig(time_max=2.0))
+    payload = torch.load(path, weights_only=False)
+    for name in ("teacher", "teacher_step"):
+        del payload["loss"][name]
+    torch.save(payload, path)
+    from rfmp_rl.checkpoint import read_checkpoint
+
+    assert read_checkpoint(path)["loss"] == LossConfig(time_max=2.0).to_dict()
