@@ -47,9 +47,10 @@ from rfmp_rl.onnx_export import (  # noqa: E402
 from rfmp_rl.solvers import SolverConfig  # noqa: E402
 
 
-def store_calibration(model, path: str, windows: int) -> list:
+def store_calibration(model, path: str, windows: int, nfe: int = 1) -> list:
     """Calibration inputs from a saved store: the policy's observation fields (concatenated in
-    the metadata order) and cameras, as training windows."""
+    the metadata order) and cameras, as training windows, with the prior noise of a graph at
+    ``nfe``."""
     cfg = model.cfg
     store = DemonstrationStore.load(path)
     fields = [name for name, _ in cfg.obs_keys]
@@ -63,7 +64,7 @@ def store_calibration(model, path: str, windows: int) -> list:
         batch_size=windows,
         generator=torch.Generator().manual_seed(0),
     )
-    return calibration_inputs(model, rb.sample())
+    return calibration_inputs(model, rb.sample(), nfe=nfe)
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -132,7 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         calibration = None
         if args.calibration:
-            calibration = store_calibration(model, args.calibration, args.calibration_windows)
+            calibration = store_calibration(model, args.calibration, args.calibration_windows,
+                                            solver.nfe)
         report = export_onnx(
             model,
             out,

@@ -28,7 +28,7 @@ from rfmp_rl.solvers import SolverConfig
 ROOT = Path(__file__).resolve().parents[1]
 
 #: The algorithms, named as the library names them (`ModelConfig.algorithm`).
-ALGORITHMS = ("rfmp", "srfmp", "ddim")
+ALGORITHMS = ("rfmp", "srfmp", "ddim", "cp")
 
 #: Settings of earlier versions' flat recipe configs -> their place in the config groups.
 RENAMED = {
@@ -109,7 +109,8 @@ def check_algo(cfg: DictConfig) -> None:
 def loss_config(cfg: DictConfig) -> LossConfig:
     """The loss's training-time options from ``cfg.loss`` (`LOSS_FIELDS`); the flows' options
     are left at their neutral values for the algorithms that do not use them (``time_max`` is
-    SRFMP's, ``t0_fraction`` the flows')."""
+    SRFMP's, ``t0_fraction`` the flows'). ``algo=cp`` adds its teacher (``teacher=``, a ddim
+    checkpoint, stored as an absolute path)."""
     given = dict(cfg.loss)
     unknown = sorted(set(given) - set(LOSS_FIELDS))
     if unknown:
@@ -117,8 +118,13 @@ def loss_config(cfg: DictConfig) -> LossConfig:
                          f"{list(LOSS_FIELDS)}")
     if cfg.algo != "srfmp":
         given["time_max"] = 1.0
-    if cfg.algo == "ddim":
+    if cfg.algo in ("ddim", "cp"):
         given["t0_fraction"] = 0.0
+    if cfg.algo == "cp":
+        if not cfg.get("teacher"):
+            raise ValueError("algo=cp distils a Diffusion Policy: give its checkpoint, "
+                             "teacher=runs/<recipe>/<ddim run>/best.pt")
+        given["teacher"] = str(Path(cfg.teacher).resolve())
     return LossConfig(**given)
 
 
@@ -272,6 +278,8 @@ def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, ma
     rb = make_replay_buffer(train_store, cfg, seed=rank_seed(cfg.seed, runtime.rank))
     val_rb = make_replay_buffer(val_store, cfg, seed=cfg.seed + 1)
     model = make_model(cfg, train_store)
+    if cfg.algo == "cp":
+        model = cp_student(model, cfg)
     if runtime.is_main:
         print(train_store.manifest)
         n_params = sum(p.numel() for p in model.parameters())
@@ -280,6 +288,24 @@ def build_training(cfg: DictConfig, runtime, make_stores, make_replay_buffer, ma
               f"{runtime.device} ({cfg.precision}), global batch "
               f"{cfg.train.batch_size * runtime.world_size}")
     return model, rb, val_rb
+
+
+def cp_student(model, cfg: DictConfig):
+    """``algo=cp``: the student initialised from the teacher (``teacher=``): its weights and
+    normalisers (`ConsistencyModel.from_teacher`; distillation runs in the teacher's normalised
+    space). The run's model settings must be the teacher's; each difference is named."""
+    from rfmp_rl.modules import ConsistencyModel
+    from rfmp_rl.objectives.consistency import load_teacher
+
+    path = loss_config(cfg).teacher
+    student = ConsistencyModel.from_teacher(load_teacher(path))
+    mine, theirs = model.cfg.to_dict(), student.cfg.to_dict()
+    differ = [f"{k}: teacher {theirs[k]!r}, this run {mine[k]!r}" for k in mine
+              if mine[k] != theirs[k]]
+    if differ:
+        raise ValueError(f"teacher={path} was trained with other model settings ("
+                         + "; ".join(differ) + "): give this run the teacher's")
+    return student
 
 
 def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,

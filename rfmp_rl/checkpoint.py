@@ -159,7 +159,9 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
 
     A checkpoint written before `LossConfig` existed is converted in memory (the file is left
     as it is): its model config's training options become the ``loss`` entry and its
-    ``control_rate_hz`` the ``control_rate_hz`` entry (`split_legacy_model_config`).
+    ``control_rate_hz`` the ``control_rate_hz`` entry (`split_legacy_model_config`). A ``loss``
+    entry written before a `LossConfig` option existed (the Consistency Policy's ``teacher``,
+    ``teacher_step``) reads with that option's default, so such a run resumes as it was.
     """
     path = Path(path)
     if not path.is_file():
@@ -178,6 +180,8 @@ def read_checkpoint(path: str | os.PathLike) -> dict[str, Any]:
     payload["model_config"] = model_cfg
     if payload.get("loss") is None:
         payload["loss"] = loss
+    if payload["loss"] is not None:  # options added since it was written: their defaults
+        payload["loss"] = {**LossConfig().to_dict(), **payload["loss"]}
     if payload.get("control_rate_hz") is None:
         payload["control_rate_hz"] = rate
     return payload

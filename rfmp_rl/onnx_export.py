@@ -3,9 +3,10 @@
 The graph normalises observations, encodes them (images included), unrolls exactly NFE solver
 evaluations with the manifold maps (or the DDIM steps), unnormalises and returns the action
 chunk ``(B, T_p, D)``. The prior noise is a graph input (``prior_noise``, standard normal,
-``(B, noise_dim)``): a controller draws it, and zeros give the deterministic mode — for every
-prior, zero noise maps to the prior's mode (Gaussian mean, wrapped-Gaussian base point, the
-sphere's origin for the uniform prior, DDIM's zero start).
+``(B, noise_dim)``; the Consistency Policy's multistep sampling takes one draw per evaluation,
+``(B, NFE * noise_dim)``, `PolicyModel.prior_noise_dim`): a controller draws it, and zeros give
+the deterministic mode — for every prior, zero noise maps to the prior's mode (Gaussian mean,
+wrapped-Gaussian base point, the sphere's origin for the uniform prior, DDIM's zero start).
 
 The observation inputs are the window ``[o^c, o^{s-1}]`` ``(B, 2, ...)``, context first, for
 every T_o (``obs_horizon``). Training draws the context ``c`` from ``[s - T_o, s - 2]`` and, when
@@ -128,6 +129,7 @@ class InferenceGraph(nn.Module):
         if self.obs_gap is not None:
             names = names[:-1]  # the gap comes last
         self.input_names = [*map(str, names), "prior_noise"]
+        self.noise_dim = model.prior_noise_dim(self.solver.nfe)  # width of prior_noise
 
     def forward(self, *inputs: torch.Tensor) -> torch.Tensor:
         *conditioning, noise = inputs
@@ -183,7 +185,7 @@ def onnx_metadata(graph: InferenceGraph, control_rate_hz: float | None = None) -
             }
         )
     inputs.append(
-        {"name": "prior_noise", "shape": [model.noise_dim], "dtype": "float32", "kind": "noise"}
+        {"name": "prior_noise", "shape": [graph.noise_dim], "dtype": "float32", "kind": "noise"}
     )
     solver = graph.solver
     meta = {
@@ -206,7 +208,7 @@ def onnx_metadata(graph: InferenceGraph, control_rate_hz: float | None = None) -
         "noise": json.dumps(
             {
                 "distribution": "standard_normal",
-                "dim": model.noise_dim,
+                "dim": graph.noise_dim,
                 "default": "standard_normal",
             }
         ),
@@ -265,12 +267,12 @@ def _example_inputs(graph: InferenceGraph, batch: int, generator: torch.Generato
         tensors.append(
             torch.randint(0, 256, (batch, 2, *shape), generator=generator, dtype=torch.uint8)
         )
-    tensors.append(torch.randn(batch, model.noise_dim, generator=generator))
+    tensors.append(torch.randn(batch, graph.noise_dim, generator=generator))
     return tuple(tensors)
 
 
 def calibration_inputs(
-    model: FlowModel | DiffusionModel, samples, batch_size: int = 8, seed: int = 0
+    model: FlowModel | DiffusionModel, samples, batch_size: int = 8, seed: int = 0, nfe: int = 1
 ) -> list[tuple[torch.Tensor, ...]]:
     """int8 calibration batches (graph inputs, in `InferenceGraph` order) from training samples.
 
@@ -282,6 +284,7 @@ def calibration_inputs(
             the same observation ranges, which is what calibration measures.
         batch_size: windows per calibration run.
         seed: seed of the standard-normal prior noise drawn for each window.
+        nfe: the NFE of the graph (the width of its prior noise, `PolicyModel.prior_noise_dim`).
     """
     generator = torch.Generator().manual_seed(seed)
     columns = []
@@ -289,7 +292,7 @@ def calibration_inputs(
         columns.append(samples.get(keys.OBSERVATION)[:, -2:].float())
     columns += [samples.get(name)[:, -2:] for name in model.cameras]
     n = columns[0].shape[0] if columns else samples.batch_size[0]
-    columns.append(torch.randn(n, model.noise_dim, generator=generator))
+    columns.append(torch.randn(n, model.prior_noise_dim(nfe), generator=generator))
     return [tuple(c[i:i + batch_size].cpu() for c in columns) for i in range(0, n, batch_size)]
 
 

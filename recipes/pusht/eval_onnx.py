@@ -111,7 +111,7 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     if "int8" in cfg.onnx_precisions:
         train_store, _ = make_stores(task)
         samples = make_replay_buffer(train_store, task, seed=int(task.seed)).sample(256)
-        calibration = calibration_inputs(model.cpu(), samples)
+        calibration = calibration_inputs(model.cpu(), samples, nfe=nfe)
     rows = []
     for precision in cfg.onnx_precisions:
         path = out / f"policy_nfe{nfe}_{precision}.onnx"

@@ -113,7 +113,7 @@ class EvalConfig:
 def sweep_settings(algorithm: str, nfes: Sequence[int], t_ends: Sequence[float],
                    time_table: Sequence[Sequence] = ()) -> list[tuple[int, float]]:
     """(NFE, T) pairs: every NFE at every T (T-major), then the ``time_table`` pairs not yet
-    listed; DDIM (a sampler without an end time) runs every NFE at T = 1 only.
+    listed; DDIM and CP (samplers without an end time) run every NFE at T = 1 only.
 
     Example:
         >>> sweep_settings("rfmp", [1, 3], [1.0, 1.6], [[4, 1.6]])
@@ -121,7 +121,7 @@ def sweep_settings(algorithm: str, nfes: Sequence[int], t_ends: Sequence[float],
         >>> sweep_settings("ddim", [1, 3], [1.0, 1.6])
         [(1, 1.0), (3, 1.0)]
     """
-    if algorithm == "ddim":
+    if algorithm in ("ddim", "cp"):
         return [(int(nfe), 1.0) for nfe in nfes]
     settings = [(int(nfe), float(t)) for t in t_ends for nfe in nfes]
     for nfe, t_end in time_table or []:

@@ -1,6 +1,7 @@
 """Normalisers, EMA, the policy networks and their TensorDict modules."""
 
 from rfmp_rl.modules.actor import RecedingHorizonActor, make_actor
+from rfmp_rl.modules.consistency import ConsistencyModel
 from rfmp_rl.modules.ema import EMA
 from rfmp_rl.modules.normalizer import Normalizer, euclidean_mask
 from rfmp_rl.modules.policy_model import (
@@ -21,6 +22,7 @@ __all__ = [
     "PolicyModel",
     "FlowModel",
     "DiffusionModel",
+    "ConsistencyModel",
     "build_model",
     "unwrap_policy_model",
     "VectorField",

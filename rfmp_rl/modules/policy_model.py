@@ -1,4 +1,5 @@
-"""The policy networks as plain tensor modules: RFMP/SRFMP flow models and the DDIM baseline.
+"""The policy networks as plain tensor modules: RFMP/SRFMP flow models and the DDIM baseline
+(the Consistency Policy student, `rfmp_rl.modules.consistency.ConsistencyModel`, builds on it).
 
 `FlowModel` and `DiffusionModel` hold everything inference needs — normalisers (buffers), the
 observation encoder, the UNet, the manifold, the prior and the solver maths — and take and
@@ -36,7 +37,7 @@ from rfmp_rl.solvers import DEFAULT_SCHEDULES, integrate
 __all__ = ["ModelConfig", "PolicyModel", "FlowModel", "DiffusionModel", "build_model",
            "unwrap_policy_model", "MOVED_FIELDS"]
 
-ALGORITHMS = ("rfmp", "srfmp", "ddim")
+ALGORITHMS = ("rfmp", "srfmp", "ddim", "cp")
 
 #: Precision name -> autocast dtype of the networks (None: fp32, no autocast).
 PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
@@ -61,7 +62,7 @@ class ModelConfig:
         12
     """
 
-    algorithm: str = "srfmp"  # rfmp | srfmp | ddim
+    algorithm: str = "srfmp"  # rfmp | srfmp | ddim | cp (Consistency Policy student)
     action_manifold: str | dict = "R2"  # per-step action space, e.g. "R3 x S3 x R1"
     horizon: int = 16  # T_p: actions predicted per chunk
     action_steps: int | None = None  # T_a: actions executed per chunk (default T_p / 2)
@@ -85,8 +86,8 @@ class ModelConfig:
     lambda_x: float = 2.5  # SRFMP: rate of the learned field; its schedule's first step 1/lambda_x
     tau0: float = 0.0  # SRFMP: pseudo-time at the prior
     tau1: float = 1.0  # SRFMP: pseudo-time at the data
-    num_diffusion_steps: int = 100  # DDIM training steps
-    clip_sample: bool = True  # DDIM clips the predicted clean sample to [-1, 1]
+    num_diffusion_steps: int = 100  # DDIM (and CP) training steps
+    clip_sample: bool = True  # DDIM / CP clip the predicted clean sample to [-1, 1]
 
     def __post_init__(self) -> None:
         if self.action_steps is None:
@@ -203,7 +204,7 @@ class PolicyModel(nn.Module):
             kernel_size=cfg.kernel_size,
             predict_tau=cfg.algorithm == "srfmp",
             tau_hidden_dim=cfg.tau_hidden_dim,
-            time_scale=1.0 if cfg.algorithm == "ddim" else 100.0,
+            time_scale=1.0 if cfg.algorithm in ("ddim", "cp") else 100.0,
         )
         self.amp_dtype: torch.dtype | None = None  # set_precision; not part of the state
         self.network_dtype: torch.dtype | None = None  # store_networks_in; export only
@@ -327,6 +328,12 @@ class PolicyModel(nn.Module):
     def noise_dim(self) -> int:
         """Size of the standard-normal prior noise per sample."""
         raise NotImplementedError
+
+    def prior_noise_dim(self, nfe: int) -> int:
+        """Width of the standard-normal prior noise a sample with ``nfe`` evaluations takes (the
+        ONNX graph's ``prior_noise`` input): `noise_dim` (CP's multistep sampling, one draw per
+        evaluation)."""
+        return self.noise_dim
 
 
 class FlowModel(PolicyModel):
@@ -537,6 +544,10 @@ def build_model(cfg: ModelConfig | Mapping[str, Any]) -> FlowModel | DiffusionMo
     """Build the network for a config (a `ModelConfig` or its dict)."""
     if not isinstance(cfg, ModelConfig):
         cfg = ModelConfig.from_dict(cfg)
+    if cfg.algorithm == "cp":
+        from rfmp_rl.modules.consistency import ConsistencyModel
+
+        return ConsistencyModel(cfg)
     return DiffusionModel(cfg) if cfg.algorithm == "ddim" else FlowModel(cfg)
 
 

@@ -83,7 +83,8 @@ class FlowPolicy(TensorDictModuleBase):
     evaluation is reproducible; under ``RANDOM`` it samples the prior. If
     the input holds ``noise_key`` (standard-normal prior noise ``(..., noise_dim)``), that noise
     is used — the same input an exported ONNX policy takes. Works with `FlowModel` (RFMP,
-    SRFMP) and `DiffusionModel` (DDIM, where ``nfe`` is the number of DDIM steps).
+    SRFMP), `DiffusionModel` (DDIM, where ``nfe`` is the number of DDIM steps) and
+    `ConsistencyModel` (CP, where ``nfe`` counts consistency evaluations: 1 is one-step).
 
     Wrap it in ``torchrl.modules.MultiStepActorWrapper(policy, n_steps=T_p,
     replan_interval=T_a)`` to execute T_a actions of each chunk (receding horizon)::

@@ -1,5 +1,5 @@
-"""TorchRL `LossModule`s: RFMP, SRFMP and the Diffusion Policy (DDIM) baseline, and the
-training-time options they own (`LossConfig`)."""
+"""TorchRL `LossModule`s: RFMP, SRFMP, the Diffusion Policy (DDIM) baseline and the Consistency
+Policy's distillation, and the training-time options they own (`LossConfig`)."""
 
 from __future__ import annotations
 
@@ -11,15 +11,18 @@ from tensordict.utils import NestedKey
 from rfmp_rl.modules.policy_model import unwrap_policy_model
 from rfmp_rl.objectives.common import FlowLoss, ImitationLoss, camera_field
 from rfmp_rl.objectives.config import TIME_SAMPLINGS, LossConfig
+from rfmp_rl.objectives.consistency import ConsistencyDistillationLoss
 from rfmp_rl.objectives.diffusion import DiffusionPolicyLoss
 from rfmp_rl.objectives.rfmp import RFMPLoss
 from rfmp_rl.objectives.srfmp import SRFMPLoss
 
 __all__ = ["ImitationLoss", "FlowLoss", "RFMPLoss", "SRFMPLoss", "DiffusionPolicyLoss",
-           "LossConfig", "TIME_SAMPLINGS", "camera_field", "make_loss"]
+           "ConsistencyDistillationLoss", "LossConfig", "TIME_SAMPLINGS", "camera_field",
+           "make_loss"]
 
 #: Algorithm -> its loss.
-LOSSES = {"rfmp": RFMPLoss, "srfmp": SRFMPLoss, "ddim": DiffusionPolicyLoss}
+LOSSES = {"rfmp": RFMPLoss, "srfmp": SRFMPLoss, "ddim": DiffusionPolicyLoss,
+          "cp": ConsistencyDistillationLoss}
 
 
 def make_loss(
@@ -31,7 +34,7 @@ def make_loss(
     """The loss matching the algorithm of ``actor`` (a `FlowPolicy`, a wrapper of one such as
     ``MultiStepActorWrapper``, or the policy model: `unwrap_policy_model`), with the
     training-time options ``loss_cfg`` (default: `LossConfig` with the model's ``lambda_x``).
-    ``kwargs`` (``reduction``) go to the loss.
+    ``kwargs`` (``reduction``; ``teacher`` for CP) go to the loss.
 
     Example:
         >>> from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model

@@ -1,4 +1,5 @@
-"""The training-time options of the losses: how flow times are drawn and the SRFMP rates.
+"""The training-time options of the losses: how flow times are drawn, the SRFMP rates, and the
+Consistency Policy's teacher.
 
 `LossConfig` is what `make_loss` and the losses take beside the actor, what checkpoints store
 under ``payload["loss"]`` and what the recipes' ``loss`` settings map onto. The policy network's
@@ -29,19 +30,20 @@ __all__ = ["LossConfig", "TIME_SAMPLINGS"]
 #: How training flow times are drawn: t uniform, or (SRFMP) pseudo-time tau uniform.
 TIME_SAMPLINGS = ("uniform", "tau")
 
-_ALGORITHMS = ("rfmp", "srfmp", "ddim")
+_ALGORITHMS = ("rfmp", "srfmp", "ddim", "cp")
 
 
 @dataclass
 class LossConfig:
-    """Training-time options of `RFMPLoss`, `SRFMPLoss` and `DiffusionPolicyLoss`.
+    """Training-time options of `RFMPLoss`, `SRFMPLoss`, `DiffusionPolicyLoss` and
+    `ConsistencyDistillationLoss`.
 
     ``check(algorithm)`` validates them for one algorithm (the losses call it).
 
     Example:
         >>> LossConfig().to_dict()  # doctest: +NORMALIZE_WHITESPACE
         {'time_sampling': 'uniform', 'time_max': 1.0, 't0_fraction': 0.0,
-         'lambda_x': 2.5, 'lambda_tau': 2.5}
+         'lambda_x': 2.5, 'lambda_tau': 2.5, 'teacher': None, 'teacher_step': 10}
     """
 
     time_sampling: str = "uniform"  # uniform | tau (SRFMP only: tau uniform in pseudo-time)
@@ -49,10 +51,12 @@ class LossConfig:
     t0_fraction: float = 0.0  # RFMP/SRFMP: share of training times set to t = 0 (`sample_times`)
     lambda_x: float = 2.5  # SRFMP spatial rate of the stable path (must match the model's)
     lambda_tau: float = 2.5  # SRFMP pseudo-time rate of the stable path
+    teacher: str | None = None  # CP: the ddim checkpoint distilled (its path)
+    teacher_step: int = 10  # CP: diffusion steps of the teacher's DDIM step between the two times
 
     def check(self, algorithm: str) -> LossConfig:
         """Raise a ``ValueError`` naming the field if a setting does not apply to ``algorithm``
-        (``rfmp``, ``srfmp`` or ``ddim``); returns ``self``."""
+        (``rfmp``, ``srfmp``, ``ddim`` or ``cp``); returns ``self``."""
         if algorithm not in _ALGORITHMS:
             raise ValueError(f"LossConfig.check: algorithm must be one of {_ALGORITHMS}, "
                              f"got {algorithm!r}")
@@ -67,7 +71,8 @@ class LossConfig:
                 f"LossConfig.time_max must be > 0, and 1 for RFMP (its path ends at t = 1), "
                 f"got {self.time_max} for {algorithm}"
             )
-        if not 0.0 <= self.t0_fraction < 1.0 or (algorithm == "ddim" and self.t0_fraction):
+        if not 0.0 <= self.t0_fraction < 1.0 or (algorithm in ("ddim", "cp")
+                                                  and self.t0_fraction):
             raise ValueError(
                 f"LossConfig.t0_fraction must lie in [0, 1) and is for the flows (rfmp, srfmp), "
                 f"got {self.t0_fraction} for {algorithm}"
@@ -75,6 +80,12 @@ class LossConfig:
         for name in ("lambda_x", "lambda_tau"):
             if not float(getattr(self, name)) > 0:
                 raise ValueError(f"LossConfig.{name} must be > 0, got {getattr(self, name)}")
+        if self.teacher is not None and algorithm != "cp":
+            raise ValueError(f"LossConfig.teacher is the Consistency Policy's (cp) teacher, got "
+                             f"{self.teacher!r} for {algorithm}")
+        if int(self.teacher_step) != self.teacher_step or self.teacher_step < 1:
+            raise ValueError(f"LossConfig.teacher_step must be a positive integer, got "
+                             f"{self.teacher_step!r}")
         return self
 
     def sample_times(

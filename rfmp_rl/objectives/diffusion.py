@@ -37,7 +37,7 @@ class DiffusionPolicyLoss(ImitationLoss):
     def __init__(self, actor, loss_cfg=None, *, camera_keys=None, reduction: str = "mean"
                  ) -> None:
         model = unwrap_policy_model(actor, "DiffusionPolicyLoss")
-        if not isinstance(model, DiffusionModel):
+        if not isinstance(model, DiffusionModel) or model.cfg.algorithm != "ddim":
             raise TypeError("DiffusionPolicyLoss needs a DiffusionModel (algorithm='ddim'), got "
                             f"algorithm {model.cfg.algorithm!r}")
         super().__init__(actor, loss_cfg, camera_keys=camera_keys, reduction=reduction)

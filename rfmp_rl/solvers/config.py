@@ -6,7 +6,9 @@ sweeps and the recipes read. Each algorithm's defaults live in `SolverConfig.res
 - SRFMP: the paper's schedule (first step ``1 / lambda_x``, then refinement steps up to T);
 - RFMP: ``NFE`` uniform steps covering ``[0, T]``;
 - DDIM: ``NFE`` DDIM steps; the method, schedule and T do not apply (reported as ``ddim``,
-  ``ddim`` and 1).
+  ``ddim`` and 1);
+- CP (Consistency Policy): ``NFE`` consistency evaluations (one-step at NFE 1), reported as
+  ``consistency``, ``consistency`` and T = 1.
 
 Checkpoints store the solver they were selected and evaluated with (``payload["solver"]``), and
 the ONNX metadata the one unrolled in the graph, so a policy loaded later integrates the same way
@@ -33,7 +35,9 @@ from rfmp_rl.solvers.ode import EVALS_PER_STEP, step_sizes
 __all__ = ["SolverConfig", "DEFAULT_SCHEDULES"]
 
 #: Algorithm -> the schedule it integrates with when none is given.
-DEFAULT_SCHEDULES = {"srfmp": "srfmp", "rfmp": "uniform", "ddim": "ddim"}
+DEFAULT_SCHEDULES = {"srfmp": "srfmp", "rfmp": "uniform", "ddim": "ddim", "cp": "consistency"}
+#: The samplers that are not ODE methods: their NFE alone defines them.
+SAMPLERS = ("ddim", "consistency")
 
 
 @dataclass(frozen=True)
@@ -63,8 +67,9 @@ class SolverConfig:
                              f"{sorted(DEFAULT_SCHEDULES)}")
         if int(self.nfe) != self.nfe or self.nfe < 1:
             raise ValueError(f"NFE must be a positive integer, got {self.nfe!r}")
-        if algorithm == "ddim":
-            return SolverConfig(int(self.nfe), 1.0, "ddim", "ddim", None)
+        if algorithm in ("ddim", "cp"):
+            sampler = DEFAULT_SCHEDULES[algorithm]
+            return SolverConfig(int(self.nfe), 1.0, sampler, sampler, None)
         if self.method not in EVALS_PER_STEP:
             raise ValueError(f"unknown ODE method {self.method!r}; choose from "
                              f"{sorted(EVALS_PER_STEP)}")
@@ -73,20 +78,22 @@ class SolverConfig:
 
     def step_sizes(self, lambda_x: float | None = None) -> list[float]:
         """The flow's step sizes (a resolved flow config; SRFMP's schedule needs ``lambda_x``)."""
-        if self.method == "ddim":
-            raise ValueError("a DDIM solver has denoising steps, not step sizes")
+        if self.method in SAMPLERS:
+            raise ValueError(f"a {self.method} solver has denoising steps, not step sizes")
         return step_sizes(self.nfe, self.method, self.t_end, self.schedule or "uniform",
                           lambda_x, self.refine_dt)
 
     def reached(self, lambda_x: float | None = None) -> float:
-        """The flow time actually reached (SRFMP at NFE 1 stops at ``1 / lambda_x``); DDIM: 1."""
-        if self.method == "ddim":
+        """The flow time actually reached (SRFMP at NFE 1 stops at ``1 / lambda_x``); DDIM and
+        CP report 1."""
+        if self.method in SAMPLERS:
             return 1.0
         return float(sum(self.step_sizes(lambda_x)))
 
     def sample_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of ``model.sample`` (`FlowModel` or `DiffusionModel`)."""
-        if self.method == "ddim":
+        """Keyword arguments of ``model.sample`` (`FlowModel`, `DiffusionModel` or
+        `ConsistencyModel`)."""
+        if self.method in SAMPLERS:
             return {"nfe": self.nfe}
         return {"nfe": self.nfe, "method": self.method, "t_end": self.t_end,
                 "schedule": self.schedule, "refine_dt": self.refine_dt}

@@ -37,9 +37,9 @@ def _model(algorithm: str, cameras: bool) -> torch.nn.Module:
     return model.eval()
 
 
-def _inputs(model, batch: int, gen: torch.Generator) -> dict[str, torch.Tensor]:
+def _inputs(model, batch: int, gen: torch.Generator, nfe: int = 1) -> dict[str, torch.Tensor]:
     out = {keys.OBSERVATION: torch.randn(batch, 2, 3, generator=gen) * 4,
-           keys.PRIOR_NOISE: torch.randn(batch, model.noise_dim, generator=gen)}
+           keys.PRIOR_NOISE: torch.randn(batch, model.prior_noise_dim(nfe), generator=gen)}
     for name in model.cameras:
         out[name] = torch.randint(0, 256, (batch, 2, 3, 32, 32), generator=gen, dtype=torch.uint8)
     return out
@@ -52,7 +52,7 @@ def _flow_policy(model, inputs: dict[str, torch.Tensor], gap: float, nfe: int) -
 
 
 @pytest.mark.parametrize(("algorithm", "cameras"), [("srfmp", False), ("ddim", False),
-                                                    ("srfmp", True)])
+                                                    ("cp", False), ("srfmp", True)])
 def test_t_o_4_graph_matches_flowpolicy_on_the_window_and_gap(tmp_path, algorithm, cameras):
     from rfmp_deploy import Policy
 
@@ -72,7 +72,7 @@ def test_t_o_4_graph_matches_flowpolicy_on_the_window_and_gap(tmp_path, algorith
     scale = model.action_normalizer.scale.numpy()
     gen = torch.Generator().manual_seed(1)
     for batch in (1, 5):
-        inputs = _inputs(model, batch, gen)
+        inputs = _inputs(model, batch, gen, nfe)
         got = session.run(["action"], {k: v.numpy() for k, v in inputs.items()})[0]
         expected = _flow_policy(model, inputs, float(T_O), nfe)
         assert (np.abs(got - expected) / scale).max() <= PARITY_LIMITS["fp32"]

@@ -19,7 +19,8 @@ def test_loss_config_round_trips_and_names_an_unknown_field():
     assert LossConfig.from_dict(cfg.to_dict()) == cfg
     assert LossConfig.from_dict(None) == LossConfig()
     assert [f for f in LossConfig().to_dict()] == ["time_sampling", "time_max", "t0_fraction",
-                                                   "lambda_x", "lambda_tau"]
+                                                   "lambda_x", "lambda_tau", "teacher",
+                                                   "teacher_step"]
     with pytest.raises(ValueError, match=r"unknown fields \['time_maxx'\]"):
         LossConfig.from_dict({"time_maxx": 2.0})
 

@@ -132,3 +132,17 @@ def test_missing_data_without_generation_names_the_file(recipe, tmp_path):
                 f"out_dir={tmp_path / 'run'}", *TINY])
     with pytest.raises(FileNotFoundError, match="none.hdf5"):
         recipe["train"].train(cfg)
+
+
+def test_cp_distils_a_ddim_teacher_on_lift_pose_actions(recipe, data_dir, tmp_path):
+    # algo=cp teacher=<ddim best.pt>: the student keeps the teacher's R3 x S3 x R1 actions and
+    # evaluates at NFE 1 with every quaternion on S^3
+    data = f"data.path={data_dir / 'Lift_abs_pose.hdf5'}"
+    common = ["task=Lift", "action_space=abs_pose", "geometry=riemannian", data, *TINY]
+    teacher = recipe["train"].train(_cfg(["algo=ddim", f"out_dir={tmp_path / 'ddim'}",
+                                          "eval.final_eval=false", *common]))
+    run = recipe["train"].train(_cfg(["algo=cp", f"teacher={teacher / 'best.pt'}",
+                                      f"out_dir={tmp_path / 'cp'}", *common]))
+    (row,) = read_table(run / "eval" / "eval.csv")
+    assert row["algo"] == "cp" and row["nfe"] == "1" and 0.0 <= float(row["success"]) <= 1.0
+    assert float(row["quat_norm_err"]) <= 1e-5
