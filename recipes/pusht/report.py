@@ -47,6 +47,14 @@ def _override(key: str, value) -> str:
     return f"'{text}'" if any(c in text for c in "[]{}") else text
 
 
+def run_device(run: Path, cfg: dict) -> str:
+    """The device the run trained on (``runtime.json``; older runs: the config's ``device``)."""
+    info = run / "runtime.json"
+    device = (json.loads(info.read_text()).get("device") if info.is_file()
+              else cfg.get("device")) or "cpu"
+    return "CPU" if str(device) == "cpu" else str(device)
+
+
 def processes(run: Path) -> int:
     """How many processes trained the run (``runtime.json``; older runs: ``last.pt``; 1)."""
     info = run / "runtime.json"
@@ -141,8 +149,9 @@ def main(argv: list[str] | None = None) -> str:
         summary[name] = scores
         groups.setdefault(group, []).append((run.name, cfg["seed"], scores))
         nproc = processes(run)
-        where = ("on this 2-core CPU" if nproc == 1 else
-                 f"on this 2-core CPU by {nproc} processes (DDP, gloo; global batch "
+        device = run_device(run, cfg)
+        where = (f"on {device}" if nproc == 1 else
+                 f"on {device} by {nproc} processes (DDP; global batch "
                  f"{nproc * cfg['train']['batch_size']})")
         sections += [
             f"## {name}",
