@@ -2,6 +2,7 @@
 its teacher included) on Push-T state, measured side by side in one run.
 
     OMP_NUM_THREADS=1 .venv/bin/python recipes/benchmarks/epoch_time.py --out results/epoch_time.md
+    # the defaults: 4 x (3 + 5 x 10) steps of 0.5-0.9 s on one CPU thread, about 3 minutes
     # tiny (the smoke test): --steps 2 --rounds 1 --warmup 1 --batch-size 8 --max-episodes 3
     #                        --down-dims 16 32
 
