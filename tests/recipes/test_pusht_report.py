@@ -125,3 +125,18 @@ def test_runs_of_earlier_versions_are_reported_in_todays_names(report, tmp_path)
     text = report.main([str(run)])
     assert "train.py algo=ddim obs=state space=euclidean model.horizon=8`" in text
     assert "| ddim state euclidean" in text
+
+
+def test_a_cell_names_the_end_time_its_solver_reached(report, tmp_path):
+    a = _run(tmp_path / "s0", {(1, 1.0): 0.84, (3, 1.0): 0.8}, seed=0)
+    b = _run(tmp_path / "s1", {(1, 1.0): 0.90, (3, 1.0): 0.7}, seed=1)
+    for run in (a, b):  # SRFMP's one step stops at 1 / lambda_x = 0.4; three steps reach T = 1
+        (run / "eval" / "eval.csv").write_text(
+            "algo,nfe,t_end,t_reached,score\nsrfmp,1,1.0,0.4,0.5\nsrfmp,3,1.0,1.0,0.6\n")
+    text = report.main([str(a), str(b)])
+    assert "| policy | NFE 1, T=1 asked | NFE 3, T=1 asked |" in text
+    summary = [line for line in text.splitlines() if line.startswith("| srfmp")]
+    assert summary[0].endswith("cap, seed 0 | 0.500 (T 0.40 reached) | 0.600 |")
+    seeded = [line for line in text.splitlines() if line.startswith("| s0 (0)")]
+    assert seeded == ["| s0 (0), s1 (1) | 0.500 (0.500, 0.500) (T 0.40 reached) "
+                      "| 0.600 (0.600, 0.600) |"]
