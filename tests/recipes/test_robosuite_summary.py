@@ -48,3 +48,15 @@ def test_missing_file_names_it(summary, tmp_path):
     (run / "history.json").unlink()
     with pytest.raises(FileNotFoundError, match="history.json"):
         summary.main([str(run)])
+
+
+def test_a_cell_names_the_end_time_its_solver_reached(summary, tmp_path):
+    run = _run(tmp_path / "a", "srfmp", {})
+    (run / "eval" / "eval.csv").write_text(  # SRFMP: one step ends at 0.4, two at 0.8
+        "task,algo,action_space,nfe,t_end,t_reached,success\n"
+        "Lift,srfmp,delta,1,1.0,0.4,0.98\nLift,srfmp,delta,2,1.0,0.8,1.0\n"
+        "Lift,srfmp,delta,3,1.0,1.0,1.0\n")
+    text = summary.summary([run])
+    assert "| NFE 1, T=1 asked | NFE 2, T=1 asked | NFE 3, T=1 asked |" in text
+    row = next(line for line in text.splitlines() if line.startswith("| Lift"))
+    assert row.split(" | ")[4:7] == ["0.98 (T 0.40 reached)", "1.00 (T 0.80 reached)", "1.00"]
