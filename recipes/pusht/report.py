@@ -27,6 +27,40 @@ TASK_KEYS = ("algo", "obs", "space", "model.prior_sphere", "model.unet_preset",
              "model.down_dims", "model.horizon", "model.action_steps", "model.obs_horizon",
              "loss.time_max", "loss.t0_fraction", "seed", "threads")
 DEFAULTS = Path(__file__).with_name("config.yaml")
+_NFE_TABLE = '"Euclidean Push-T: Impact of NFE on policies" at T = 1'
+_TIME_TABLE = '"Influence of Integration Time" at NFE 3, T 1.2 and NFE 4, T 1.6'
+_SPHERE_TABLE = '"Impact of the prior distribution on Sphere Push-T Task"'
+_T1 = ((1, 1.0), (3, 1.0), (5, 1.0), (10, 1.0))
+
+
+def _t1(*figures: str) -> dict:
+    """The paper's figures at NFE 1, 3, 5, 10 and T = 1."""
+    return dict(zip(_T1, figures, strict=True))
+
+
+#: The paper's Push-T scores (image observations, 50 seeds) by (space, algo, sphere prior), each
+#: ``(row label, {(NFE, T asked): figure})``. Its two Euclidean tables disagree on SRFMP at NFE 3,
+#: T = 1 (0.851 in the NFE table, 0.862 in the integration-time table): both are given.
+PAPER_ROWS = {
+    ("euclidean", "srfmp", None): (f"SRFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})", {
+        (1, 1.0): "0.875", (3, 1.0): "0.851 / 0.862", (5, 1.0): "0.837", (10, 1.0): "0.856",
+        (3, 1.2): "0.851", (4, 1.6): "0.829"}),
+    ("euclidean", "rfmp", None): (f"RFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})", {
+        (1, 1.0): "0.848", (3, 1.0): "0.855", (5, 1.0): "0.923", (10, 1.0): "0.891",
+        (3, 1.2): "0.492", (4, 1.6): "0.191"}),
+    ("euclidean", "ddim", None): (f"DP, from images (table {_NFE_TABLE})",
+                                  _t1("0.109", "0.79", "0.838", "0.862")),
+    ("sphere", "srfmp", "uniform"): (f"SRFMP (uniform prior), from images (table {_SPHERE_TABLE})",
+                                     _t1("0.772", "0.736", "0.796", "0.829")),
+    ("sphere", "srfmp", "wrapped"): (f"SRFMP (Gaussian prior), from images (table {_SPHERE_TABLE})",
+                                     _t1("0.707", "0.706", "0.735", "0.707")),
+    ("sphere", "rfmp", "uniform"): (f"RFMP (uniform prior), from images (table {_SPHERE_TABLE})",
+                                    _t1("0.871", "0.746", "0.77", "0.817")),
+    ("sphere", "rfmp", "wrapped"): (f"RFMP (Gaussian prior), from images (table {_SPHERE_TABLE})",
+                                    _t1("0.587", "0.724", "0.748", "0.733")),
+    ("sphere", "ddim", None): (f"DP, Euclidean Gaussian, from images (table {_SPHERE_TABLE})",
+                               _t1("0.227", "0.796", "0.813", "0.885")),
+}
 NOT_TRAINING = ("out_dir", "checkpoint", "defaults", "hydra")  # not part of what a run learned
 
 
@@ -136,6 +170,9 @@ def main(argv: list[str] | None = None) -> str:
     names = [name for _, _, name in runs]
     defaults = yaml.safe_load(DEFAULTS.read_text())
     sections, summary, groups, reached = [], {}, {}, {}
+    paper_keys = {(cfg["space"], cfg["algo"], cfg.get("model", {}).get("prior_sphere", "uniform")
+                   if cfg["space"] == "sphere" and cfg["algo"] != "ddim" else None)
+                  for _, cfg, _ in runs}
     for run, cfg, name in runs:
         history = json.loads(_read(run / "history.json", "the run's validation curve"))
         by_rollout = cfg["train"].get("select_by") == "rollout"
@@ -192,6 +229,10 @@ def main(argv: list[str] | None = None) -> str:
         head.append(f"| {name} | " + " | ".join(
             f"{scores[s]:.3f}{_reached(reached, [name], s)}" if s in scores else "-"
             for s in settings) + " |")
+    for key, (label, figures) in PAPER_ROWS.items():
+        if key in paper_keys:
+            head.append(f"| paper, {label} | " + " | ".join(figures.get(s, "-") for s in settings)
+                        + " |")
     seeded = [g for g in groups.values() if len({seed for _, seed, *_ in g}) > 1]
     if seeded:
         head += ["", "Across training seeds (runs whose settings differ only in `seed`): the mean "

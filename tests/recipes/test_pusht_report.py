@@ -140,3 +140,11 @@ def test_a_cell_names_the_end_time_its_solver_reached(report, tmp_path):
     seeded = [line for line in text.splitlines() if line.startswith("| s0 (0)")]
     assert seeded == ["| s0 (0), s1 (1) | 0.500 (0.500, 0.500) (T 0.40 reached) "
                       "| 0.600 (0.600, 0.600) |"]
+
+
+def test_the_papers_figures_stand_under_the_runs_at_its_settings(report, tmp_path):
+    a = _run(tmp_path / "a", {(1, 1.0): 0.9, (3, 1.2): 0.8, (2, 1.0): 0.7})
+    text = report.main([str(a)])
+    paper = [line for line in text.splitlines() if line.startswith("| paper, ")]
+    assert len(paper) == 1 and paper[0].startswith("| paper, SRFMP, from images (tables ")
+    assert paper[0].endswith("| 0.875 | - | 0.851 |")  # NFE 2 is not in the paper's tables
