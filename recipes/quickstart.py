@@ -460,8 +460,11 @@ def claim_checks(results: dict, shape_ids: torch.Tensor, cfg: DictConfig) -> lis
     for nfe in cfg.nfes:
         sr_lo, sr_hi = results[("srfmp", nfe, t_lo)]["dtw"], results[("srfmp", nfe, t_hi)]["dtw"]
         rf_lo, rf_hi = results[("rfmp", nfe, t_lo)]["dtw"], results[("rfmp", nfe, t_hi)]["dtw"]
+        hi, lo = (results[("srfmp", nfe, t)]["t_reached"] for t in (t_hi, t_lo))
+        asked = "" if math.isclose(hi, t_hi) and math.isclose(lo, t_lo) else " asked"
         checks.append(
-            f"- NFE={nfe}: SRFMP DTW T={t_hi:g}/T={t_lo:g} = {sr_hi / sr_lo:.3f} "
+            f"- NFE={nfe}: SRFMP DTW T={t_hi:g}/T={t_lo:g}{asked} (T {hi:.2f} / {lo:.2f} reached) "
+            f"= {sr_hi / sr_lo:.3f} "
             f"(within 10%: {abs(sr_hi / sr_lo - 1) <= 0.10}); RFMP = {rf_hi / rf_lo:.3f} "
             f"(grows: {rf_hi > rf_lo})"
         )
