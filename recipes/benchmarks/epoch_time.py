@@ -43,9 +43,9 @@ from pathlib import Path
 
 import torch
 from training_throughput import (
-    _pusht_utils,
     cpu_name,
     default_zarr,
+    pusht_utils,
     recipe_config,
     regenerate_command,
 )
@@ -95,7 +95,7 @@ def recipe_cfg(algo: str, args):
 
 def build(algo: str, args, store, device: torch.device) -> Algo:
     """The recipe's model and loss of ``algo`` on ``device``, AdamW and EMA as the trainer's."""
-    utils = _pusht_utils()
+    utils = pusht_utils()
     cfg = recipe_cfg("ddim" if algo == "cp" else algo, args)
     torch.manual_seed(args.seed)
     model = utils.make_model(cfg, store).to(device)
@@ -259,7 +259,7 @@ def main(argv: list[str] | None = None) -> int:
     if not Path(args.data).exists():
         raise SystemExit(f"epoch_time.py: no Push-T zarr at {args.data} (give --data)")
     device = torch.device(args.device)
-    utils = _pusht_utils()
+    utils = pusht_utils()
     cfg = recipe_cfg("ddim", args)
     store, _ = utils.make_stores(cfg)
     rb = utils.make_replay_buffer(store, cfg, args.seed)

@@ -73,7 +73,7 @@ DATA_TARGET = 0.10
 
 
 # ----- data ------------------------------------------------------------------------------------
-def _pusht_utils():
+def pusht_utils():
     """recipes/pusht/utils.py, imported under its own name (it is `utils` to the recipe)."""
     name = "pusht_recipe_utils"
     if name not in sys.modules:
@@ -159,7 +159,7 @@ def load_task_data(task: str, batch: int, zarr: str | Path | None = None, seed: 
                         (torch.full((2,), lo), torch.full((2,), hi)),
                         (torch.full((cfg.obs_dim,), lo), torch.full((cfg.obs_dim,), hi)),
                         f"synthetic batches ({why})", False)
-    utils = _pusht_utils()
+    utils = pusht_utils()
     cfg = recipe_config(task.removeprefix("pusht_"),
                         [f"train.batch_size={batch}", f"data.path={zarr}"])
     train_store, val_store = utils.make_stores(cfg)

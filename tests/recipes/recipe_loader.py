@@ -3,12 +3,39 @@
 from __future__ import annotations
 
 import importlib.util
+import os
 import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
 if str(ROOT) not in sys.path:  # `recipes.common` of this checkout, as the scripts import it
     sys.path.insert(0, str(ROOT))
+
+
+# Diffusion Policy's Push-T demonstrations: the Push-T recipe tests run on the real zarr.
+PUSHT = Path(os.environ.get("RFMP_PUSHT_ZARR", ROOT.parent / "shared/data/pusht/"
+                            "pusht_cchi_v7_replay.zarr"))
+
+
+def pusht_marks() -> list:
+    """The marks of a Push-T recipe test module: slow, and skipped without the zarr."""
+    import pytest
+
+    return [
+        pytest.mark.slow,
+        pytest.mark.skipif(not PUSHT.exists(), reason=f"Push-T zarr not found at {PUSHT}: place "
+                           "Diffusion Policy's pusht_cchi_v7_replay.zarr there or set "
+                           "RFMP_PUSHT_ZARR"),
+    ]
+
+
+# A Push-T recipe run of a few steps on three episodes (the smoke tests' overrides).
+PUSHT_TINY = [
+    "train.steps=2", "train.val_every=1", "train.val_batches=1", "train.batch_size=4",
+    "train.log_every=1", "optim.warmup_steps=1", "data.max_episodes=3", "data.val_episodes=2",
+    "eval.seeds=2", "eval.nfes=[1]", "eval.t_ends=[1.0]", "eval.max_steps=12",
+    "eval.time_table=[]", "model.down_dims=[16,32]", f"data.path={PUSHT}", "threads=1",
+]
 
 
 def load_recipe(name: str):

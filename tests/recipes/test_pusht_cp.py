@@ -6,33 +6,20 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
-import os
 from pathlib import Path
 
 import pytest
 import torch
-from recipe_loader import compose, load_recipe
+from recipe_loader import PUSHT_TINY, compose, load_recipe, pusht_marks
 
 from rfmp_rl.checkpoint import load_checkpoint, read_checkpoint
 from rfmp_rl.eval import read_table
 from rfmp_rl.modules import ConsistencyModel
 
 ROOT = Path(__file__).resolve().parents[2]
-PUSHT = Path(os.environ.get("RFMP_PUSHT_ZARR", ROOT.parent / "shared/data/pusht/"
-                            "pusht_cchi_v7_replay.zarr"))
+pytestmark = pusht_marks()
 
-pytestmark = [
-    pytest.mark.slow,
-    pytest.mark.skipif(not PUSHT.exists(), reason=f"Push-T zarr not found at {PUSHT}: place "
-                       "Diffusion Policy's pusht_cchi_v7_replay.zarr there or set RFMP_PUSHT_ZARR"),
-]
-
-TINY = [
-    "train.steps=2", "train.val_every=1", "train.val_batches=1", "train.batch_size=4",
-    "train.log_every=1", "optim.warmup_steps=1", "data.max_episodes=3", "data.val_episodes=2",
-    "eval.seeds=2", "eval.nfes=[1]", "eval.t_ends=[1.0]", "eval.max_steps=12",
-    "eval.time_table=[]", "model.down_dims=[16,32]", f"data.path={PUSHT}", "threads=1",
-]
+TINY = PUSHT_TINY
 
 
 @pytest.fixture(scope="module")
