@@ -48,12 +48,23 @@ NOT_RUN = "not run"
 NO_EVAL = "no evaluation yet"
 NOT_AT_SETTING = "not evaluated at this setting"
 _GROUP_KEYS = {"recipe", "folder", "seeds", "command", "file", "note"}
+#: What each kind of table must give.
+_TABLE_KEYS = {"sweep": ("title", "claim", "settings", "columns", "rows"),
+               "efficiency": ("title", "claim", "nfe", "epochs", "rows"),
+               "epoch_time": ("title", "claim", "source", "command")}
 
 
 # ----- the manifest ----------------------------------------------------------------------------
 @dataclass(frozen=True)
 class RunGroup:
-    """Training runs that differ only in their seed (one folder each)."""
+    """Training runs that differ only in their seed (one folder each).
+
+    Example:
+        >>> g = RunGroup.from_entry("tuned", {"recipe": "pusht", "folder": "runs/s{seed}",
+        ...                                   "seeds": [0, 1], "command": "train.py seed={seed}"})
+        >>> g.folders, g.commands[1], g.metric
+        (('runs/s0', 'runs/s1'), 'train.py seed=1', 'score')
+    """
 
     name: str
     recipe: str
@@ -111,8 +122,16 @@ def load_manifest(path: Path) -> tuple[dict[str, RunGroup], list[dict]]:
     for i, table in enumerate(data["tables"]):
         where = f"{path}: tables[{i}] ({table.get('title', 'untitled')})"
         kind = table.get("kind", "sweep")
-        if kind not in ("sweep", "efficiency", "epoch_time"):
+        if kind not in _TABLE_KEYS:
             raise ValueError(f"{where}: kind {kind!r} is not sweep, efficiency or epoch_time")
+        missing = [k for k in _TABLE_KEYS[kind] if k not in table]
+        if missing:
+            raise ValueError(f"{where}: missing {missing} (a {kind} table needs "
+                             f"{', '.join(_TABLE_KEYS[kind])})")
+        if table.get("paper_claim") and not isinstance(
+                getattr(paper, table["paper_claim"], None), str):
+            raise ValueError(f"{where}: paper_claim {table['paper_claim']!r} is not a text "
+                             "of recipes/paper.py")
         slots = list(table.get("columns", {})) if kind == "sweep" else ["runs"]
         for row in table.get("rows", []):
             for slot in slots:
@@ -137,7 +156,12 @@ def _paper_ref(ref: str, where: str = "") -> tuple[paper.PaperTable, str]:
 # ----- the runs --------------------------------------------------------------------------------
 @dataclass
 class RunState:
-    """One run folder as found: whether it exists, its rows, the commands behind it."""
+    """One run folder as found: whether it exists, its rows, the commands behind it.
+
+    Example:
+        >>> RunState("runs/a", 0, False, "train.py seed=0").describe()
+        '`runs/a` (seed 0): not run; training: `train.py seed=0`'
+    """
 
     folder: str
     seed: int | None
@@ -247,7 +271,17 @@ def _t_text(reached: list[float]) -> str:
 # ----- tables ----------------------------------------------------------------------------------
 @dataclass
 class Footnotes:
-    """The commands under a table: one numbered entry per run group."""
+    """The commands under a table: one numbered entry per run group.
+
+    Example:
+        >>> notes = Footnotes()
+        >>> g = RunGroup.from_entry("a", {"recipe": "pusht", "folder": "runs/a",
+        ...                               "command": "train.py"})
+        >>> notes.ref(g, "SRFMP, tuned", [RunState("runs/a", None, False, "train.py")])
+        '[1]'
+        >>> notes.lines[0]
+        '- [1] SRFMP, tuned (`a`)'
+    """
 
     groups: dict[str, int] = field(default_factory=dict)
     lines: list[str] = field(default_factory=list)

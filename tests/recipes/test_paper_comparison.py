@@ -196,6 +196,10 @@ def test_manifest_errors_name_the_entry(tmp_path):
     bad = {"a": {"recipe": "pusht", "folder": "runs/a", "seeds": [0, 1], "command": "t"}}
     with pytest.raises(ValueError, match="several seeds share one folder"):
         pc.load_manifest(_manifest(tmp_path, bad, []))
+    with pytest.raises(ValueError, match=r"missing \['settings'\]"):
+        table = _sweep([])
+        del table["settings"]
+        pc.load_manifest(_manifest(tmp_path, runs, [table]))
     with pytest.raises(ValueError, match=r"runs.a: missing 'command'"):
         pc.load_manifest(_manifest(tmp_path, {"a": {"recipe": "pusht", "folder": "x"}}, []))
 
