@@ -339,9 +339,8 @@ def sweep_table(table: dict, groups: dict[str, RunGroup], root: Path) -> list[st
             figure = ref[0].cell(ref[1], nfe, t_end) if ref else "-"
             lines.append(f"| {row['policy']} | {nfe} | {t_end:g} | {_t_text(reached)} | "
                          f"{figure} | " + " | ".join(cells) + " |")
-    lines.append("")
     for caption, policies in sources.items():
-        lines.append(f"Paper column: table {caption}, for {'; '.join(policies)}.")
+        lines += ["", f"Paper column: table {caption}, for {'; '.join(policies)}."]
     return lines + ["", "Runs and commands:", "", *notes.lines, ""]
 
 
