@@ -47,7 +47,7 @@ EFFICIENCY_COLUMNS = ("task", "algo", "seed", "epoch", "nfe", "success")
 NOT_RUN = "not run"
 NO_EVAL = "no evaluation yet"
 NOT_AT_SETTING = "not evaluated at this setting"
-_GROUP_KEYS = {"recipe", "folder", "seeds", "command", "file", "note"}
+_GROUP_KEYS = {"recipe", "folder", "seeds", "command", "file", "note", "evaluate"}
 #: What each kind of table must give.
 _TABLE_KEYS = {"sweep": ("title", "claim", "settings", "columns", "rows"),
                "efficiency": ("title", "claim", "nfe", "epochs", "rows"),
@@ -75,6 +75,8 @@ class RunGroup:
     note: str | None = None
     folder_template: str = ""
     command_template: str = ""
+    evaluations: tuple[str, ...] = ()
+    evaluate_template: str = ""
 
     @classmethod
     def from_entry(cls, name: str, entry: dict) -> RunGroup:
@@ -95,6 +97,8 @@ class RunGroup:
         try:
             folders = tuple(entry["folder"].format(**f) for f in fill)
             commands = tuple(entry["command"].format(**f) for f in fill)
+            evaluations = tuple(entry["evaluate"].format(**f) for f in fill
+                                ) if entry.get("evaluate") else ()
         except (KeyError, IndexError) as err:
             raise ValueError(f"runs.{name}: folder/command use {{{err.args[0]}}}, which "
                              "'seeds' does not give") from err
@@ -103,7 +107,7 @@ class RunGroup:
                              "(put {seed} in 'folder')")
         return cls(name, entry["recipe"], folders, seeds, commands,
                    entry.get("file", "eval/eval.csv"), entry.get("note"), entry["folder"],
-                   entry["command"])
+                   entry["command"], evaluations, entry.get("evaluate") or "")
 
     @property
     def metric(self) -> str:
@@ -171,6 +175,7 @@ class RunState:
     rows: list[dict] | None = None
     eval_command: str | None = None
     status: str = NOT_RUN
+    evaluate: str | None = None
 
     def describe(self) -> str:
         where = f"`{self.folder}`" + ("" if self.seed is None else f" (seed {self.seed})")
@@ -178,7 +183,10 @@ class RunState:
             self.status, "evaluated" + (f" by `{self.eval_command}`" if self.eval_command
                                         else ""))
         source = f" (from `{self.command_file}`)" if self.command_file else ""
-        return f"{where}: {status}; training{source}: `{self.command}`"
+        text = f"{where}: {status}; training{source}: `{self.command}`"
+        if self.evaluate and self.status != "evaluated":
+            text += f"; evaluation: `{self.evaluate}`"
+        return text
 
 
 def _first_comment(path: Path) -> str | None:
@@ -192,7 +200,8 @@ def read_run(root: Path, group: RunGroup, index: int) -> RunState:
     folder = group.folders[index]
     path = root / folder
     cmd_file = path.with_name(path.name + ".cmd")
-    state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index])
+    state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index],
+                     evaluate=group.evaluations[index] if group.evaluations else None)
     if cmd_file.is_file():
         state.command = " ".join(cmd_file.read_text().split())
         state.command_file = f"{folder}.cmd"
@@ -298,6 +307,8 @@ class Footnotes:
                 seeds = ", ".join(str(s.seed) for s in pending)
                 self.lines.append(f"  - `{group.folder_template}` for seeds {seeds}: not run; "
                                   f"training: `{group.command_template}`")
+                if group.evaluations:
+                    self.lines[-1] += f"; evaluation: `{group.evaluate_template}`"
         return f"[{self.groups[group.name]}]"
 
 
@@ -355,11 +366,12 @@ def _efficiency_rows(state: RunState, path: Path) -> list[dict]:
 def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path) -> list[str]:
     """Rows: task and algorithm; columns: success at each snapshot epoch at the table's NFE."""
     nfe, epochs = int(table["nfe"]), [int(e) for e in table["epochs"]]
+    t_end = float(table.get("t_end", 1.0))
     notes = Footnotes()
     header = ["policy", "NFE", "T reached", "paper (its text)",
               *(f"epoch {e}" for e in epochs)]
-    lines = _head(table) + [f"Success at NFE {nfe} of the snapshot at each epoch, from each run's "
-                            "`efficiency.csv`.", "",
+    lines = _head(table) + [f"Success at NFE {nfe}, T {t_end:g} asked, of the snapshot at each "
+                            "epoch, from each run's `efficiency.csv`.", "",
                             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in table["rows"]:
         group = groups[row["runs"]]
@@ -372,7 +384,8 @@ def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path) -> li
                     raise ValueError(f"{root / state.folder / group.file}: a row of "
                                      f"{r['task']}/{r['algo']}, but the manifest row is "
                                      f"{row['task']}/{row['algo']}")
-                if int(r["nfe"]) == nfe and int(r["epoch"]) in by_epoch:
+                if (int(r["nfe"]) == nfe and int(r["epoch"]) in by_epoch
+                        and math.isclose(float(r.get("t_end") or 1.0), t_end)):
                     by_epoch[int(r["epoch"])].append(float(r["success"]))
                     if _reached(r) is not None:
                         reached.append(_reached(r))

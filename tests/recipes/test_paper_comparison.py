@@ -133,15 +133,18 @@ def test_the_report_command_heads_the_written_file(two_of_three, tmp_path):
 def _efficiency(folder: Path, seed: int, successes: dict[int, float], task="Lift",
                 algo="srfmp") -> None:
     folder.mkdir(parents=True)
-    lines = ["task,algo,seed,epoch,nfe,success"]
+    lines = ["task,algo,seed,epoch,nfe,t_end,t_reached,success"]
     for epoch, s in successes.items():
-        lines += [f"{task},{algo},{seed},{epoch},3,{s}", f"{task},{algo},{seed},{epoch},1,0.0"]
+        lines += [f"{task},{algo},{seed},{epoch},3,1.0,1.0,{s}",
+                  f"{task},{algo},{seed},{epoch},1,1.0,0.4,0.0",  # other NFE, other T: not read
+                  f"{task},{algo},{seed},{epoch},3,1.6,1.6,0.0"]
     (folder / "efficiency.csv").write_text("\n".join(lines) + "\n")
 
 
 def _efficiency_manifest(tmp_path: Path) -> Path:
     runs = {"eff": {"recipe": "robosuite", "file": "efficiency.csv", "folder": "runs/e{seed}",
-                    "seeds": [0, 1, 2], "command": "efficiency.py seed={seed}"}}
+                    "seeds": [0, 1, 2], "command": "train.py train.epochs=50 seed={seed}",
+                    "evaluate": "efficiency.py runs/e{seed}"}}
     table = {"title": "Training efficiency", "kind": "efficiency", "claim": "fast", "nfe": 3,
              "epochs": [10, 20, 30],
              "rows": [{"task": "Lift", "algo": "srfmp", "policy": "Lift, SRFMP", "runs": "eff"}]}
@@ -152,10 +155,16 @@ def test_efficiency_table_averages_the_seeds_at_each_epoch(tmp_path):
     root = tmp_path / "repo"
     _efficiency(root / "runs" / "e0", 0, {10: 0.5, 20: 1.0})
     _efficiency(root / "runs" / "e1", 1, {10: 0.7, 20: 1.0})
+    (root / "runs" / "e2").mkdir()  # still training: no efficiency.csv yet
     text = pc.build(_efficiency_manifest(tmp_path), root, "cmd")
     assert _line(text, "| Lift, SRFMP |") == [
-        "| Lift, SRFMP | 3 | - | high success after 20 epochs | 0.600 ± 0.141 (2 of 3 runs) [1] "
-        "| 1.000 ± 0.000 (2 of 3 runs) [1] | not evaluated at this setting [1] |"]
+        "| Lift, SRFMP | 3 | 1.00 | high success after 20 epochs | 0.600 ± 0.141 (2 of 3 runs) "
+        "[1] | 1.000 ± 0.000 (2 of 3 runs) [1] | not evaluated at this setting [1] |"]
+    assert _line(text, "  - `runs/e2` (seed 2)") == [
+        "  - `runs/e2` (seed 2): exists, no evaluation yet; training: `train.py train.epochs=50 "
+        "seed=2`; evaluation: `efficiency.py runs/e2`"]
+    assert _line(text, "  - `runs/e0` (seed 0)")[0].endswith(
+        "evaluated; training: `train.py train.epochs=50 seed=0`")
 
 
 def test_efficiency_files_are_checked(tmp_path):
