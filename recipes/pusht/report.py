@@ -20,6 +20,7 @@ from pathlib import Path
 
 import yaml
 
+from recipes import paper
 from recipes.common import upgrade_config
 from rfmp_rl.eval import read_table
 
@@ -27,39 +28,52 @@ TASK_KEYS = ("algo", "obs", "space", "model.prior_sphere", "model.unet_preset",
              "model.down_dims", "model.horizon", "model.action_steps", "model.obs_horizon",
              "loss.time_max", "loss.t0_fraction", "seed", "threads")
 DEFAULTS = Path(__file__).with_name("config.yaml")
-_NFE_TABLE = '"Euclidean Push-T: Impact of NFE on policies" at T = 1'
-_TIME_TABLE = '"Influence of Integration Time" at NFE 3, T 1.2 and NFE 4, T 1.6'
-_SPHERE_TABLE = '"Impact of the prior distribution on Sphere Push-T Task"'
-_T1 = ((1, 1.0), (3, 1.0), (5, 1.0), (10, 1.0))
+_NFE_TABLE = f'"{paper.PUSHT_NFE.caption}" at T = 1'
+_TIME_TABLE = '"Influence of Integration Time" at NFE 3, T 1.2 and NFE 4, T 1.6'  # as printed
+_SPHERE_TABLE = f'"{paper.SPHERE_PRIORS.caption}"'
 
 
-def _t1(*figures: str) -> dict:
-    """The paper's figures at NFE 1, 3, 5, 10 and T = 1."""
-    return dict(zip(_T1, figures, strict=True))
+def _figures(*rows: dict) -> dict:
+    """``{(NFE, T): "figure"}`` as the paper prints it; where two of its tables give the same
+    setting different figures, both (``"0.851 / 0.862"``)."""
+    out: dict = {}
+    for row in rows:
+        for setting, value in row.items():
+            text = f"{value:g}"
+            out[setting] = text if setting not in out or out[setting] == text else (
+                f"{out[setting]} / {text}")
+    return out
+
+
+def _euclidean(algo: str) -> dict:
+    return _figures(paper.PUSHT_NFE.rows[algo], paper.PUSHT_TIME.rows[f"euclidean/{algo}"])
+
+
+def _sphere(key: str) -> dict:
+    return _figures(paper.SPHERE_PRIORS.rows[key])
 
 
 #: The paper's Push-T scores (image observations, 50 seeds) by (space, algo, sphere prior), each
-#: ``(row label, {(NFE, T asked): figure})``. Its two Euclidean tables disagree on SRFMP at NFE 3,
-#: T = 1 (0.851 in the NFE table, 0.862 in the integration-time table): both are given.
+#: ``(row label, {(NFE, T asked): figure})`` (`recipes.paper`). Its two Euclidean tables disagree
+#: on SRFMP at NFE 3, T = 1 (0.851 in the NFE table, 0.862 in the integration-time table): both
+#: are given.
 PAPER_ROWS = {
-    ("euclidean", "srfmp", None): (f"SRFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})", {
-        (1, 1.0): "0.875", (3, 1.0): "0.851 / 0.862", (5, 1.0): "0.837", (10, 1.0): "0.856",
-        (3, 1.2): "0.851", (4, 1.6): "0.829"}),
-    ("euclidean", "rfmp", None): (f"RFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})", {
-        (1, 1.0): "0.848", (3, 1.0): "0.855", (5, 1.0): "0.923", (10, 1.0): "0.891",
-        (3, 1.2): "0.492", (4, 1.6): "0.191"}),
+    ("euclidean", "srfmp", None): (f"SRFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})",
+                                   _euclidean("srfmp")),
+    ("euclidean", "rfmp", None): (f"RFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})",
+                                  _euclidean("rfmp")),
     ("euclidean", "ddim", None): (f"DP, from images (table {_NFE_TABLE})",
-                                  _t1("0.109", "0.79", "0.838", "0.862")),
+                                  _figures(paper.PUSHT_NFE.rows["ddim"])),
     ("sphere", "srfmp", "uniform"): (f"SRFMP (uniform prior), from images (table {_SPHERE_TABLE})",
-                                     _t1("0.772", "0.736", "0.796", "0.829")),
+                                     _sphere("srfmp/uniform")),
     ("sphere", "srfmp", "wrapped"): (f"SRFMP (Gaussian prior), from images (table {_SPHERE_TABLE})",
-                                     _t1("0.707", "0.706", "0.735", "0.707")),
+                                     _sphere("srfmp/wrapped")),
     ("sphere", "rfmp", "uniform"): (f"RFMP (uniform prior), from images (table {_SPHERE_TABLE})",
-                                    _t1("0.871", "0.746", "0.77", "0.817")),
+                                    _sphere("rfmp/uniform")),
     ("sphere", "rfmp", "wrapped"): (f"RFMP (Gaussian prior), from images (table {_SPHERE_TABLE})",
-                                    _t1("0.587", "0.724", "0.748", "0.733")),
+                                    _sphere("rfmp/wrapped")),
     ("sphere", "ddim", None): (f"DP, Euclidean Gaussian, from images (table {_SPHERE_TABLE})",
-                               _t1("0.227", "0.796", "0.813", "0.885")),
+                               _sphere("ddim/euclidean")),
 }
 NOT_TRAINING = ("out_dir", "checkpoint", "defaults", "hydra")  # not part of what a run learned
 

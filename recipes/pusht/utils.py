@@ -11,6 +11,7 @@ from dataclasses import replace
 import torch
 from omegaconf import DictConfig
 
+from recipes import paper
 from recipes.common import (
     TaskEval,
     check_algo,
@@ -33,13 +34,10 @@ CONTROL_RATE_HZ = 1.0 / CONTROL_DT  # stored in the checkpoints and the ONNX met
 #: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
 TASK_KEYS = ("obs", "space")
 
-#: The paper's Euclidean Push-T scores (mean maximum coverage over 50 seeds) by algorithm at
-#: (NFE, T = 1): its table "Euclidean Push-T: Impact of NFE on policies".
-PAPER = {
-    "rfmp": {(1, 1.0): 0.848, (3, 1.0): 0.855, (5, 1.0): 0.923, (10, 1.0): 0.891},
-    "srfmp": {(1, 1.0): 0.875, (3, 1.0): 0.851, (5, 1.0): 0.837, (10, 1.0): 0.856},
-    "ddim": {(1, 1.0): 0.109, (3, 1.0): 0.79, (5, 1.0): 0.838, (10, 1.0): 0.862},
-}
+#: The paper's Euclidean Push-T scores (mean maximum coverage over 50 seeds, from images) by
+#: algorithm at (NFE, T): its NFE table at T = 1 and its integration-time table at NFE 3, T 1.2
+#: and NFE 4, T 1.6 (`recipes.paper.pusht_euclidean`).
+PAPER = {algo: paper.pusht_euclidean(algo) for algo in ("rfmp", "srfmp", "ddim")}
 
 
 def check_config(cfg: DictConfig) -> None:

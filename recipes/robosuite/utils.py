@@ -13,6 +13,7 @@ from omegaconf import DictConfig
 from tensordict import TensorDict
 from tensordict.nn import TensorDictModule, TensorDictSequential
 
+from recipes import paper
 from recipes.common import (
     ROOT,
     TaskEval,
@@ -46,22 +47,9 @@ CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in the checkpoints and
 TASK_KEYS = ("task", "obs", "action_space", "geometry")
 
 #: The paper's success rates on the state-based robomimic tasks (its table "Success rate as a
-#: function of different NFE values on the state-based Robomimic tasks"), at T = 1.
-_PAPER_NFES = (1, 2, 3, 5, 10)
-PAPER = {
-    (task, algo): {(nfe, 1.0): v for nfe, v in zip(_PAPER_NFES, values, strict=True)}
-    for (task, algo), values in {
-        ("Lift", "rfmp"): (0.992, 0.992, 0.992, 0.992, 0.992),
-        ("Lift", "srfmp"): (1.000, 0.992, 0.992, 0.996, 1.000),
-        ("Lift", "ddim"): (0.008, 0.756, 0.948, 0.956, 0.976),
-        ("PickPlaceCan", "rfmp"): (0.976, 0.996, 0.996, 0.996, 0.996),
-        ("PickPlaceCan", "srfmp"): (0.980, 0.980, 0.996, 0.992, 0.968),
-        ("PickPlaceCan", "ddim"): (0.004, 0.340, 0.836, 0.924, 0.908),
-        ("NutAssemblySquare", "rfmp"): (0.792, 0.848, 0.920, 0.896, 0.912),
-        ("NutAssemblySquare", "srfmp"): (0.776, 0.800, 0.828, 0.824, 0.848),
-        ("NutAssemblySquare", "ddim"): (0.012, 0.384, 0.628, 0.672, 0.684),
-    }.items()
-}
+#: function of different NFE values on the state-based Robomimic tasks"), at T = 1
+#: (`recipes.paper.ROBOMIMIC_STATE`).
+PAPER = {tuple(key.split("/")): figures for key, figures in paper.ROBOMIMIC_STATE.rows.items()}
 
 
 def check_config(cfg: DictConfig) -> None:

@@ -1,0 +1,253 @@
+"""recipes/paper_comparison.py: every cell is read from a run folder (mean and spread over
+training seeds, ``not run`` where no folder exists), every row names its NFE, the T asked and
+the T reached, and every run's command stands under its table; recipes/paper.py feeds the
+recipes' own paper columns."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import yaml
+from recipe_loader import compose, load_script
+
+from recipes import paper
+from recipes import paper_comparison as pc
+from rfmp_rl.eval import Column, write_tables
+
+PUSHT_CMD = ".venv/bin/python recipes/pusht/train.py algo=srfmp seed={seed} out_dir=runs/s{seed}"
+
+
+def _eval_csv(folder: Path, rows: list[tuple], metric: str = "score",
+              command: str = "python recipes/pusht/eval.py checkpoint=x/best.pt") -> None:
+    """``rows``: (nfe, t_end, t_reached, value)."""
+    (folder / "eval").mkdir(parents=True)
+    lines = [f"# {command}", f"algo,nfe,t_end,t_reached,{metric}"]
+    lines += [f"srfmp,{n},{t},{r},{v}" for n, t, r, v in rows]
+    (folder / "eval" / "eval.csv").write_text("\n".join(lines) + "\n")
+
+
+def _manifest(tmp_path: Path, runs: dict, tables: list[dict]) -> Path:
+    path = tmp_path / "manifest.yaml"
+    path.write_text(yaml.safe_dump({"runs": runs, "tables": tables}, sort_keys=False))
+    return path
+
+
+def _sweep(rows: list[dict], settings=((1, 1.0), (3, 1.0)), columns=None) -> dict:
+    return {"title": "Push-T NFE sweep", "claim": "SRFMP is best at NFE 1.",
+            "settings": [list(s) for s in settings],
+            "columns": columns or {"paper_settings": "ours, paper settings",
+                                   "tuned": "ours, tuned"},
+            "rows": rows}
+
+
+def _line(text: str, start: str) -> list[str]:
+    return [line for line in text.splitlines() if line.startswith(start)]
+
+
+@pytest.fixture
+def two_of_three(tmp_path):
+    """Seeds 0 and 1 of a three-seed group evaluated (SRFMP: NFE 1 stops at T 0.4)."""
+    root = tmp_path / "repo"
+    _eval_csv(root / "runs" / "s0", [(1, 1.0, 0.4, 0.8), (3, 1.0, 1.0, 0.7)])
+    _eval_csv(root / "runs" / "s1", [(1, 1.0, 0.4, 0.9), (3, 1.0, 1.0, 0.9)])
+    runs = {"tuned": {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0, 1, 2],
+                      "command": PUSHT_CMD},
+            "paper_runs": {"recipe": "pusht", "folder": "runs/p{seed}", "seeds": [0, 1],
+                           "command": "train.py lr=1e-4 seed={seed}"}}
+    table = _sweep([{"policy": "SRFMP", "paper": "pusht_nfe srfmp",
+                     "paper_settings": "paper_runs", "tuned": "tuned"}])
+    return _manifest(tmp_path, runs, [table]), root
+
+
+def test_cells_give_mean_and_spread_over_the_seeds_that_ran(two_of_three):
+    manifest, root = two_of_three
+    text = pc.build(manifest, root, "python recipes/paper_comparison.py")
+    rows = _line(text, "| SRFMP |")
+    # policy | NFE | T asked | T reached | paper | ours, paper settings | ours, tuned
+    assert rows[0] == ("| SRFMP | 1 | 1 | 0.40 | 0.875 | not run [1] "
+                       "| 0.850 ± 0.071 (2 of 3 runs) [2] |")
+    assert rows[1] == ("| SRFMP | 3 | 1 | 1.00 | 0.851 | not run [1] "
+                       "| 0.800 ± 0.141 (2 of 3 runs) [2] |")
+    assert "| policy | NFE | T asked | T reached | paper | ours, paper settings | ours, tuned |" \
+        in text
+
+
+def test_every_run_of_a_row_carries_its_command(two_of_three):
+    manifest, root = two_of_three
+    (root / "runs" / "s1.cmd").write_text("OMP_NUM_THREADS=1 .venv/bin/python recipes/pusht/"
+                                          "train.py algo=srfmp seed=1 lr=1e-3\n")
+    text = pc.build(manifest, root, "python recipes/paper_comparison.py")
+    s0 = _line(text, "  - `runs/s0` (seed 0)")[0]
+    assert "evaluated by `python recipes/pusht/eval.py checkpoint=x/best.pt`" in s0
+    assert s0.endswith("training: `.venv/bin/python recipes/pusht/train.py algo=srfmp seed=0 "
+                       "out_dir=runs/s0`")
+    s1 = _line(text, "  - `runs/s1` (seed 1)")[0]  # the .cmd beside the folder wins
+    assert s1.endswith("training (from `runs/s1.cmd`): `OMP_NUM_THREADS=1 .venv/bin/python "
+                       "recipes/pusht/train.py algo=srfmp seed=1 lr=1e-3`")
+    assert _line(text, "  - `runs/s2` (seed 2)") == [
+        "  - `runs/s2` (seed 2): not run; training: `.venv/bin/python recipes/pusht/train.py "
+        "algo=srfmp seed=2 out_dir=runs/s2`"]
+    # seeds not run yet share one line with the manifest's command
+    assert _line(text, "  - `runs/p{seed}`") == [
+        "  - `runs/p{seed}` for seeds 0, 1: not run; training: `train.py lr=1e-4 seed={seed}`"]
+    assert _line(text, "- [1] ")[0] == "- [1] SRFMP, ours, paper settings (`paper_runs`)"
+
+
+def test_folders_without_evaluation_and_skipped_settings_say_so(tmp_path):
+    root = tmp_path / "repo"
+    (root / "runs" / "training").mkdir(parents=True)  # a run still training: no eval/ yet
+    _eval_csv(root / "runs" / "partial", [(1, 1.0, 1.0, 0.5)], metric="success")
+    runs = {"training": {"recipe": "pusht", "folder": "runs/training", "command": "train.py"},
+            "partial": {"recipe": "robosuite", "folder": "runs/partial", "command": "train.py"}}
+    table = _sweep([{"policy": "Lift, SRFMP", "paper": "robomimic_state Lift/srfmp",
+                     "paper_settings": "training", "tuned": "partial"}])
+    text = pc.build(_manifest(tmp_path, runs, [table]), root, "cmd")
+    rows = _line(text, "| Lift, SRFMP |")
+    assert rows[0] == ("| Lift, SRFMP | 1 | 1 | 1.00 | 1.000 ± 0.000 | no evaluation yet [1] "
+                       "| 0.500 [2] |")
+    assert rows[1] == ("| Lift, SRFMP | 3 | 1 | - | 0.992 ± 0.010 | no evaluation yet [1] "
+                       "| not evaluated at this setting [2] |")
+    assert "`runs/training`: exists, no evaluation yet; training: `train.py`" in text
+
+
+def test_a_row_without_a_group_for_a_column_and_without_paper_figure(tmp_path):
+    runs = {"a": {"recipe": "pusht", "folder": "runs/a", "command": "train.py"}}
+    table = _sweep([{"policy": "CP", "paper": None, "ours": "a"}], settings=[(1, 1.0)],
+                   columns={"paper_settings": "ours, paper settings", "ours": "ours"})
+    text = pc.build(_manifest(tmp_path, runs, [table]), tmp_path, "cmd")
+    assert _line(text, "| CP |") == ["| CP | 1 | 1 | - | - | - | not run [1] |"]
+
+
+def test_the_report_command_heads_the_written_file(two_of_three, tmp_path):
+    manifest, root = two_of_three
+    out = tmp_path / "results" / "paper_comparison.md"
+    argv = ["--manifest", str(manifest), "--root", str(root), "--out", str(out)]
+    pc.main(argv)
+    lines = out.read_text().splitlines()
+    assert lines[0] == "# The paper's claims beside ours"
+    assert lines[2].startswith("Generated by `python recipes/paper_comparison.py "
+                               + " ".join(argv) + "`")
+
+
+def _efficiency(folder: Path, seed: int, successes: dict[int, float], task="Lift",
+                algo="srfmp") -> None:
+    folder.mkdir(parents=True)
+    lines = ["task,algo,seed,epoch,nfe,t_end,t_reached,success"]
+    for epoch, s in successes.items():
+        lines += [f"{task},{algo},{seed},{epoch},3,1.0,1.0,{s}",
+                  f"{task},{algo},{seed},{epoch},1,1.0,0.4,0.0",  # other NFE, other T: not read
+                  f"{task},{algo},{seed},{epoch},3,1.6,1.6,0.0"]
+    (folder / "efficiency.csv").write_text("\n".join(lines) + "\n")
+
+
+def _efficiency_manifest(tmp_path: Path) -> Path:
+    runs = {"eff": {"recipe": "robosuite", "file": "efficiency.csv", "folder": "runs/e{seed}",
+                    "seeds": [0, 1, 2], "command": "train.py train.epochs=50 seed={seed}",
+                    "evaluate": "efficiency.py runs/e{seed}"}}
+    table = {"title": "Training efficiency", "kind": "efficiency", "claim": "fast", "nfe": 3,
+             "epochs": [10, 20, 30],
+             "rows": [{"task": "Lift", "algo": "srfmp", "policy": "Lift, SRFMP", "runs": "eff"}]}
+    return _manifest(tmp_path, runs, [table])
+
+
+def test_efficiency_table_averages_the_seeds_at_each_epoch(tmp_path):
+    root = tmp_path / "repo"
+    _efficiency(root / "runs" / "e0", 0, {10: 0.5, 20: 1.0})
+    _efficiency(root / "runs" / "e1", 1, {10: 0.7, 20: 1.0})
+    (root / "runs" / "e2").mkdir()  # still training: no efficiency.csv yet
+    text = pc.build(_efficiency_manifest(tmp_path), root, "cmd")
+    assert _line(text, "| Lift, SRFMP |") == [
+        "| Lift, SRFMP | 3 | 1.00 | high success after 20 epochs | 0.600 ± 0.141 (2 of 3 runs) "
+        "[1] | 1.000 ± 0.000 (2 of 3 runs) [1] | not evaluated at this setting [1] |"]
+    assert _line(text, "  - `runs/e2` (seed 2)") == [
+        "  - `runs/e2` (seed 2): exists, no evaluation yet; training: `train.py train.epochs=50 "
+        "seed=2`; evaluation: `efficiency.py runs/e2`"]
+    assert _line(text, "  - `runs/e0` (seed 0)")[0].endswith(
+        "evaluated; training: `train.py train.epochs=50 seed=0`")
+
+
+def test_efficiency_files_are_checked(tmp_path):
+    root = tmp_path / "repo"
+    _efficiency(root / "runs" / "e0", 0, {10: 0.5}, task="PickPlaceCan")
+    with pytest.raises(ValueError, match=r"e0/efficiency.csv: a row of PickPlaceCan/srfmp"):
+        pc.build(_efficiency_manifest(tmp_path), root, "cmd")
+    (root / "runs" / "e0" / "efficiency.csv").write_text("task,algo,epoch,success\n"
+                                                         "Lift,srfmp,10,0.5\n")
+    with pytest.raises(ValueError, match=r"missing columns \['seed', 'nfe'\]"):
+        pc.build(_efficiency_manifest(tmp_path), root, "cmd")
+
+
+def test_epoch_time_table_reads_the_benchmark_or_says_not_run(tmp_path):
+    table = {"title": "Training time per epoch", "kind": "epoch_time", "claim": "CP is 2x",
+             "source": "results/epoch_time.md", "command": "epoch_time.py --out x"}
+    manifest = _manifest(tmp_path, {}, [table])
+    text = pc.build(manifest, tmp_path, "cmd")
+    assert _line(text, "| CP |") == [
+        "| CP | 31.44 ± 0.27 | 102.86 ± 0.61 | 1.96x / 1.93x | not run | not run |"]
+    (tmp_path / "results").mkdir()
+    (tmp_path / "results" / "epoch_time.md").write_text(
+        "# t\n\n| algorithm | parameters | s/step (median) | steps/epoch | s/epoch | vs DDIM |\n"
+        "|---|---|---|---|---|---|\n| ddim | 4M | 0.5 | 96 | 46.32 | 1.00x |\n"
+        "| cp | 4M | 0.8 | 96 | 75.77 | 1.64x |\n\nRows:\n")
+    text = pc.build(manifest, tmp_path, "cmd")
+    assert _line(text, "| CP |")[0].endswith("| 75.77 | 1.64x |")
+    assert _line(text, "| RFMP |")[0].endswith("| - | - |")  # not in that benchmark run
+
+
+def test_manifest_errors_name_the_entry(tmp_path):
+    runs = {"a": {"recipe": "pusht", "folder": "runs/a", "command": "train.py"}}
+    with pytest.raises(ValueError, match="names run group 'b'"):
+        pc.load_manifest(_manifest(tmp_path, runs, [_sweep([{"policy": "x", "tuned": "b"}])]))
+    with pytest.raises(ValueError, match="paper table 'pusht_nfe' has no row 'cp'"):
+        pc.load_manifest(_manifest(tmp_path, runs, [_sweep([{"policy": "x", "paper":
+                                                             "pusht_nfe cp"}])]))
+    bad = {"a": {"recipe": "pusht", "folder": "runs/a", "seeds": [0, 1], "command": "t"}}
+    with pytest.raises(ValueError, match="several seeds share one folder"):
+        pc.load_manifest(_manifest(tmp_path, bad, []))
+    with pytest.raises(ValueError, match=r"missing \['settings'\]"):
+        table = _sweep([])
+        del table["settings"]
+        pc.load_manifest(_manifest(tmp_path, runs, [table]))
+    with pytest.raises(ValueError, match=r"runs.a: missing 'command'"):
+        pc.load_manifest(_manifest(tmp_path, {"a": {"recipe": "pusht", "folder": "x"}}, []))
+
+
+def test_the_shipped_manifest_covers_every_claim_and_references_resolve():
+    groups, tables = pc.load_manifest(pc.MANIFEST)
+    titles = " / ".join(t["title"] for t in tables)
+    for claim in ("Push-T NFE sweep", "Integration time", "Sphere Push-T priors",
+                  "robomimic NFE sweep", "Training efficiency", "Consistency Policy",
+                  "Orientation geometry"):
+        assert claim in titles
+    time_table = next(t for t in tables if t["title"].startswith("Integration time"))
+    assert time_table["settings"] == [[3, 1.0], [3, 1.2], [4, 1.6]]  # the paper's own pairs
+    assert all("{seed}" in g.command_template for g in groups.values()
+               if len(g.seeds) > 1)
+
+
+def test_paper_module_gives_both_push_t_tables_to_the_recipes():
+    assert paper.pusht_euclidean("srfmp") == {
+        (1, 1.0): 0.875, (3, 1.0): 0.851, (5, 1.0): 0.837, (10, 1.0): 0.856,
+        (3, 1.2): 0.851, (4, 1.6): 0.829}
+    assert paper.pusht_euclidean("rfmp")[(4, 1.6)] == 0.191
+    assert paper.PUSHT_TIME.figure("euclidean/srfmp", 3, 1.0) == 0.862
+    assert paper.robomimic_state("NutAssemblySquare", "rfmp")[(3, 1.0)] == 0.920
+    assert paper.ROBOMIMIC_STATE.cell("ToolHang/srfmp", 1, 1.0) == "0.240 ± 0.028"
+    with pytest.raises(KeyError, match="no row 'x'"):
+        paper.PUSHT_NFE.figure("x", 1, 1.0)
+
+
+def test_a_fresh_pusht_eval_prints_the_papers_figures_at_t_1_2_and_1_6(tmp_path):
+    utils = load_script("pusht", "utils")
+    cfg = compose("pusht", ["algo=rfmp"])
+    task = utils.eval_task(cfg)
+    rows = [{"algo": "rfmp", "nfe": n, "t_end": t, "t_reached": t, "score": 0.5,
+             "score_std": 0.1} for n, t in ((3, 1.0), (3, 1.2), (4, 1.6))]
+    md = write_tables(rows, tmp_path, title="t", command="c",
+                      columns=[Column("score", "score", paper=True)], labels=["algo"],
+                      paper=task.paper, time_table=cfg.eval.time_table).read_text()
+    assert "| paper | 0.855 | 0.492 | 0.191 |" in md
+    robosuite = load_script("robosuite", "utils")
+    assert robosuite.PAPER[("Lift", "ddim")][(1, 1.0)] == 0.008
+
