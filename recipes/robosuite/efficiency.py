@@ -328,9 +328,10 @@ def main(argv: list[str] | None = None) -> list[dict]:
     parser.add_argument("--nfe", type=int, default=3, help="NFE of the evaluation (paper: 3)")
     parser.add_argument("--seeds", type=int, default=50, help="evaluation episodes per snapshot")
     parser.add_argument("--seed-start", type=int, default=100000, help="first evaluation seed")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads of the policy")
     parser.add_argument("--set", nargs="*", default=[], metavar="KEY=VALUE",
                         help="further settings of the recipe's config for the evaluation "
-                             "(e.g. eval.workers=2 threads=1)")
+                             "(e.g. eval.workers=2 eval.num_envs=25)")
     parser.add_argument("--no-eval", action="store_true",
                         help="evaluate nothing: the table from the runs' efficiency.csv only")
     args = parser.parse_args(argv)
@@ -352,7 +353,8 @@ def main(argv: list[str] | None = None) -> list[dict]:
             rows += [r for r in read_cache(run / CACHE)
                      if (r["nfe"], r["t_end"], r["eval_seeds"]) == spec]
         else:
-            rows += evaluate_run(run, args.nfe, args.seeds, args.seed_start, args.set)
+            rows += evaluate_run(run, args.nfe, args.seeds, args.seed_start,
+                                 [f"threads={args.threads}", *args.set])
     if args.out:
         command = "python recipes/robosuite/efficiency.py " + " ".join(
             shlex.quote(a) for a in (argv if argv is not None else sys.argv[1:]))

@@ -128,7 +128,7 @@ def test_snapshots_are_evaluated_once_and_cached(recipe, efficiency, tmp_path, m
         return evaluate(path, *args, **kw)
 
     monkeypatch.setattr(efficiency, "evaluate_snapshot", counted)
-    settings = ["--seeds", "2", "--seed-start", "500", "--set", "eval.max_steps=6", "threads=1"]
+    settings = ["--seeds", "2", "--seed-start", "500", "--set", "eval.max_steps=6"]
     rows = efficiency.main([str(run), *settings])
     assert calls == ["epoch_001.pt", "epoch_002.pt"]
     assert [(r["epoch"], r["nfe"], r["episodes"], r["eval_seeds"]) for r in rows] == [
