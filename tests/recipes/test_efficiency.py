@@ -52,7 +52,8 @@ def test_plan_lists_every_task_algorithm_and_seed(efficiency, capsys):
 def _fake_run(folder: Path, task: str, algo: str, seed: int, success: dict[int, float],
               nfe: int = 3) -> Path:
     folder.mkdir(parents=True)
-    cfg = {"task": task, "algo": algo, "seed": seed, "optim": {"lr": 1e-4},
+    cfg = {"task": task, "algo": algo, "seed": seed, "optim": {"lr": 1e-4}, "obs": "state",
+           "action_space": "delta", "model": {"unet_preset": "small"},
            "train": {"batch_size": 256, "epochs": 50, "snapshot_every_epochs": 10}}
     (folder / "config.yaml").write_text(yaml.safe_dump(cfg))
     lines = [",".join(["task", "algo", "seed", "epoch", "step", "nfe", "t_end", "t_reached",
@@ -85,7 +86,8 @@ def test_table_and_plot_give_the_mean_and_spread_over_training_seeds(efficiency,
     assert body["| Lift DDIM"] == ["3, 1.00", "0, 1", "0.05 ± 0.07", "0.20 (n=1) |"]
     assert body["| NutAssemblySquare RFMP"] == ["3, 1.00", "0", "0.30", "0.60 |"]
     assert "| epoch 10 | epoch 20 |" in text and "![success against epochs](efficiency.png)" in text
-    assert "| `" + str(runs[0]) + "` | Lift | SRFMP | 0 | 0.0001 | 256 | 10, 20 | 40 |" in text
+    assert ("| `" + str(runs[0]) + "` | Lift | SRFMP | 0 | state, delta | small | 0.0001 | 256 | "
+            "10, 20 | 40 |") in text
     png = out.with_suffix(".png")
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
 
