@@ -2,6 +2,7 @@
 DDP under torchrun) and resume."""
 
 from rfmp_rl.training.engine import (
+    SNAPSHOT_DIR,
     FitResult,
     LoggerConfig,
     OptimConfig,
@@ -10,6 +11,8 @@ from rfmp_rl.training.engine import (
     check_resumable,
     compile_networks,
     lr_at,
+    snapshot_path,
+    steps_per_epoch,
     validation_loss,
 )
 from rfmp_rl.training.loggers import LOGGER_BACKENDS, make_logger
@@ -34,6 +37,9 @@ __all__ = [
     "compile_networks",
     "lr_at",
     "validation_loss",
+    "steps_per_epoch",
+    "snapshot_path",
+    "SNAPSHOT_DIR",
     "make_logger",
     "LOGGER_BACKENDS",
     "Runtime",

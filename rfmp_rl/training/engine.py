@@ -22,6 +22,15 @@ finishes first); it holds what a resumed run needs to continue exactly where thi
 weights, EMA, optimiser, gradient scaler, step, elapsed minutes, the best score so far, the
 history, the logger's counters and every rank's RNG states (torch, CUDA, numpy, python, the
 replay buffer's sampler).
+
+Epochs: one epoch is one pass over the training windows at the global batch,
+``ceil(windows / (batch_size x world_size))`` steps, where ``windows`` is ``len(data)`` (one
+window per stored step for a `DemonstrationStore` replay buffer: every step is a reference step
+of its sampler). ``train.epochs`` sets the budget to ``epochs x steps per epoch`` (it wins over
+``train.steps``); ``train.snapshot_every_epochs`` makes rank 0 write ``snapshots/epoch_010.pt``,
+... (the checkpoint best.pt would be at that step: weights and EMA weights, loadable by the
+recipes' eval.py) as those epochs end. A resumed run keeps the snapshots it has and never
+rewrites one.
 """
 
 from __future__ import annotations
@@ -52,7 +61,21 @@ from rfmp_rl.training.resume import check_resumable
 from rfmp_rl.training.runtime import Runtime, rank_seed, rng_state, set_rng_state
 
 __all__ = ["OptimConfig", "TrainConfig", "LoggerConfig", "FitResult", "Trainer", "lr_at",
-           "validation_loss", "compile_networks", "check_resumable"]
+           "validation_loss", "compile_networks", "check_resumable", "steps_per_epoch",
+           "snapshot_path", "SNAPSHOT_DIR"]
+
+#: The folder of a run's epoch snapshots (``<run>/snapshots/epoch_010.pt``, ...).
+SNAPSHOT_DIR = "snapshots"
+
+
+def snapshot_path(run_dir: str | Path, epoch: int) -> Path:
+    """Where a run keeps the snapshot taken as ``epoch`` ends.
+
+    Example:
+        >>> snapshot_path("runs/x", 10).as_posix()
+        'runs/x/snapshots/epoch_010.pt'
+    """
+    return Path(run_dir) / SNAPSHOT_DIR / f"epoch_{int(epoch):03d}.pt"
 
 
 def _pick(cls, mapping: Mapping[str, Any] | None):
@@ -78,7 +101,16 @@ class OptimConfig:
 @dataclass
 class TrainConfig:
     """The loop's budget and cadence (``batch_size`` is per rank: the global batch is
-    ``batch_size x world_size``)."""
+    ``batch_size x world_size``).
+
+    The budget is ``steps``, or with ``epochs`` set ``epochs x`` `steps_per_epoch` (``epochs``
+    wins; ``steps`` is then ignored); ``max_minutes`` caps either. ``snapshot_every_epochs``
+    keeps ``snapshots/epoch_NNN.pt`` as every such epoch ends (see the module docstring).
+
+    Example:
+        >>> TrainConfig(epochs=50, snapshot_every_epochs=10).counts_epochs
+        True
+    """
 
     steps: int = 12000
     max_minutes: float = math.inf  # wall-clock cap; the lr decay follows whichever ends first
@@ -88,12 +120,19 @@ class TrainConfig:
     log_every: int = 50
     checkpoint_every: int = 500  # last.pt (resumable) every this many steps
     select_by: str = "val_loss"  # best.pt: val_loss (lowest) | rollout (highest score)
+    epochs: int | None = None  # when set, the budget is epochs x steps per epoch (not steps)
+    snapshot_every_epochs: int | None = None  # snapshots/epoch_NNN.pt every this many epochs
 
     def __post_init__(self) -> None:
         for name in ("steps", "batch_size", "val_every", "val_batches", "log_every",
                      "checkpoint_every"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"train.{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("epochs", "snapshot_every_epochs"):
+            value = getattr(self, name)
+            if value is not None and (isinstance(value, bool) or int(value) != value
+                                      or int(value) < 1):
+                raise ValueError(f"train.{name} must be null or an integer >= 1, got {value!r}")
         if self.max_minutes is None:
             self.max_minutes = math.inf
         if float(self.max_minutes) <= 0:
@@ -105,6 +144,24 @@ class TrainConfig:
     @classmethod
     def from_config(cls, mapping) -> TrainConfig:
         return _pick(cls, mapping)
+
+    @property
+    def counts_epochs(self) -> bool:
+        """Whether the run needs its steps per epoch (an epoch budget or epoch snapshots)."""
+        return self.epochs is not None or self.snapshot_every_epochs is not None
+
+
+def steps_per_epoch(windows: int, batch_size: int, world_size: int = 1) -> int:
+    """Optimiser steps of one pass over ``windows`` training windows at the global batch
+    ``batch_size x world_size`` (the last batch of an epoch may be partly a repeat).
+
+    Example:
+        >>> steps_per_epoch(1000, 256), steps_per_epoch(1000, 256, world_size=2)
+        (4, 2)
+    """
+    if int(windows) < 1:
+        raise ValueError(f"an epoch needs at least one training window, got {windows}")
+    return math.ceil(int(windows) / (int(batch_size) * int(world_size)))
 
 
 @dataclass
@@ -241,6 +298,8 @@ class Trainer:
             run must keep them.
         control_rate_hz: the rate the environment executes actions at, stored in the
             checkpoints (the exporter writes it into the ONNX metadata).
+        epoch_windows: the training windows one epoch passes over (default ``len(data)``);
+            read only with ``train.epochs`` or ``train.snapshot_every_epochs``.
 
     Example:
         >>> from tensordict import TensorDict
@@ -283,6 +342,7 @@ class Trainer:
         solver: SolverConfig | None = None,
         loss: LossConfig | None = None,
         control_rate_hz: float | None = None,
+        epoch_windows: int | None = None,
     ) -> None:
         self.runtime, self.recipe = runtime, recipe
         self.control_rate_hz = control_rate_hz
@@ -310,6 +370,15 @@ class Trainer:
                                  f"but the run keeps best.pt by {stored} (its best score is of "
                                  "that kind); resume with the run's setting")
             self.resume_state = payload
+        self.epoch_windows, self.steps_per_epoch = self._epochs(data, epoch_windows)
+        self.total_steps = (self.train_cfg.epochs * self.steps_per_epoch
+                            if self.train_cfg.epochs is not None else int(self.train_cfg.steps))
+        if self.train_cfg.snapshot_every_epochs is not None and resume is None:
+            taken = sorted((self.run_dir / SNAPSHOT_DIR).glob("epoch_*.pt"))
+            if taken:
+                raise ValueError(f"{self.run_dir / SNAPSHOT_DIR} already holds snapshots "
+                                 f"({taken[0].name}, ...) of another run: resume that run or "
+                                 "choose another run folder")
 
         self.model = model.set_precision(runtime.precision).to(runtime.device)
         self.loss_fn = make_loss(self.model, loss, camera_keys)
@@ -339,7 +408,42 @@ class Trainer:
         if self.resume_state is not None:
             self._load_state(self.resume_state)
 
+    def _epochs(self, data, windows: int | None) -> tuple[int | None, int | None]:
+        """``(training windows, steps per epoch)``, or ``(None, None)`` when the run counts no
+        epochs; the data's own batch size must be ``train.batch_size`` (what an epoch uses)."""
+        cfg = self.train_cfg
+        if not cfg.counts_epochs:
+            return None, None
+        if windows is None:
+            if not hasattr(data, "__len__"):
+                raise ValueError("train.epochs / train.snapshot_every_epochs count epochs over "
+                                 f"the training windows, but the training data "
+                                 f"({type(data).__name__}) has no len(); pass epoch_windows")
+            windows = len(data)
+        sampled = getattr(data, "batch_size", None)
+        if isinstance(sampled, int) and sampled != int(cfg.batch_size):
+            raise ValueError(f"train.batch_size={cfg.batch_size} but the training data samples "
+                             f"batches of {sampled}: an epoch would be miscounted")
+        return int(windows), steps_per_epoch(windows, cfg.batch_size, self.runtime.world_size)
+
     # ----- checkpoints -------------------------------------------------------------------------
+    def save_snapshot(self) -> Path | None:
+        """Rank 0: write ``snapshots/epoch_NNN.pt`` for the epoch ending at this step (weights,
+        EMA weights, step, epoch; as best.pt). A snapshot already there (a resumed run) is kept
+        as it is; returns the path written, or None."""
+        epoch = self.step // self.steps_per_epoch
+        path = snapshot_path(self.run_dir, epoch)
+        if not self.runtime.is_main or path.exists():
+            return None
+        return save_checkpoint(path, self.model, self.ema, self.config, step=self.step,
+                               epoch=epoch, steps_per_epoch=self.steps_per_epoch,
+                               train_minutes=self.minutes, solver=self.solver, loss=self.loss_cfg,
+                               control_rate_hz=self.control_rate_hz)
+
+    def _snapshot_due(self) -> bool:
+        every = self.train_cfg.snapshot_every_epochs
+        return every is not None and self.step % (int(every) * self.steps_per_epoch) == 0
+
     def _generators(self) -> dict[str, torch.Generator]:
         gen = getattr(getattr(self.data, "sampler", None), "generator", None)
         return {"sampler": gen} if gen is not None else {}
@@ -472,15 +576,21 @@ class Trainer:
         rt.barrier()
         start_minutes, clock = self.minutes, time.perf_counter()
         label = "score" if cfg.select_by == "rollout" else "val"
-        bar = tqdm(total=cfg.steps, initial=self.step, desc=f"train {self.recipe}", unit="step",
+        total = self.total_steps
+        if main and self.steps_per_epoch is not None:
+            budget = (f"{cfg.epochs} epochs = {total} steps" if cfg.epochs is not None
+                      else f"{total} steps")
+            print(f"one epoch: {self.epoch_windows} training windows at global batch "
+                  f"{cfg.batch_size * rt.world_size} = {self.steps_per_epoch} steps; {budget}")
+        bar = tqdm(total=total, initial=self.step, desc=f"train {self.recipe}", unit="step",
                    dynamic_ncols=True, disable=not (main and self.progress))
         interrupted = None
         with _StopSignals() as signals:
             if self.pending_validation:  # the run stopped on a validation step before it ran
                 self._validate_all(logger, signals)
-            while self.step < cfg.steps:
+            while self.step < total:
                 self.step += 1
-                progress = max(self.step / cfg.steps, self.minutes / cfg.max_minutes)
+                progress = max(self.step / total, self.minutes / cfg.max_minutes)
                 lr = lr_at(self.optim_cfg, self.step, progress)
                 loss = self.update(self.data.sample(), lr)
                 self.running = loss if self.running is None else 0.98 * self.running + 0.02 * loss
@@ -494,10 +604,12 @@ class Trainer:
                 elapsed = start_minutes + (time.perf_counter() - clock) / 60
                 self.minutes, signalled = self._agree(elapsed, signals.received is not None)
                 time_up = self.minutes >= cfg.max_minutes
-                last = self.step == cfg.steps or time_up
+                last = self.step == total or time_up
                 self.pending_validation = self.step % cfg.val_every == 0 or last
                 if self.pending_validation and not signalled:
                     signalled = self._validate_all(logger, signals)
+                if self._snapshot_due():
+                    self.save_snapshot()
                 if self.step % cfg.checkpoint_every == 0 or last or signalled:
                     self.save_last(logger)
                 if signalled:

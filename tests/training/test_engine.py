@@ -74,6 +74,14 @@ def test_ddp_two_gloo_ranks_at_half_batch_match_one_process_at_full_batch(tmp_pa
     ema1 = torch.load(tmp_path / "ddp" / "ema_rank1.pt", weights_only=True)["ema"]
     for name, p in ddp["ema"].items():
         torch.testing.assert_close(ema1[name], p, rtol=0, atol=0)
+    # epoch snapshots count epochs at the global batch; rank 0 writes them without a collective
+    run = tmp_path / "ddp" / "run"
+    assert sorted(p.name for p in (run / "snapshots").iterdir()) == ["epoch_002.pt",
+                                                                      "epoch_004.pt"]
+    payload = read_checkpoint(run / "snapshots" / "epoch_004.pt")
+    assert (payload["extra"]["step"], payload["extra"]["steps_per_epoch"]) == (steps, 5)
+    for name, p in ddp["ema"].items():
+        torch.testing.assert_close(payload["ema_state_dict"][name], p, rtol=0, atol=0)
 
 
 # ----- (b) resume ------------------------------------------------------------------------------
