@@ -195,7 +195,8 @@ class QuaternionSigns(Transform):
         self._previous[key] = torch.stack([out[..., f.columns] for f in self.fields], -2)
         return out
 
-    def _apply(self, tensordict: TensorDictBase, reset: torch.Tensor | None) -> TensorDictBase:
+    def _canonicalize_entries(self, tensordict: TensorDictBase,
+                              reset: torch.Tensor | None) -> TensorDictBase:
         for key in self.in_keys:
             value = tensordict.get(key, None)
             if value is None:
@@ -205,7 +206,7 @@ class QuaternionSigns(Transform):
         return tensordict
 
     def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
-        return self._apply(next_tensordict, None)
+        return self._canonicalize_entries(next_tensordict, None)
 
     forward = _call
 
@@ -217,7 +218,7 @@ class QuaternionSigns(Transform):
         else:
             mask = torch.ones(tensordict_reset.batch_size, dtype=torch.bool,
                               device=tensordict_reset.device)
-        return self._apply(tensordict_reset, mask)
+        return self._canonicalize_entries(tensordict_reset, mask)
 
 
 def observation_windows(
