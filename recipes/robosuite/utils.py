@@ -49,7 +49,9 @@ CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
 CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in the checkpoints and ONNX metadata
 #: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
-TASK_KEYS = ("task", "obs", "action_space", "geometry", "obs_quaternions")
+#: (``obs_quaternions`` is guarded by the model config a resume compares: a run made before
+#: it resumes with ``obs_quaternions=raw``.)
+TASK_KEYS = ("task", "obs", "action_space", "geometry")
 #: The hemisphere of the first abs_pose action quaternion (xyzw): the hand pointing down, the
 #: reference of the observed ``robot0_eef_quat`` (`robosuite_obs_quaternions`).
 HAND_REFERENCE = (1.0, 0.0, 0.0, 0.0)
