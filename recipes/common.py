@@ -48,7 +48,7 @@ MOVED = {
 RENAMED_ALGOS = {"dp": "ddim"}
 #: ModelConfig fields a task derives from its own settings (never set in ``model:``).
 TASK_MODEL_FIELDS = ("algorithm", "action_manifold", "obs_dim", "obs_manifold", "obs_keys",
-                     "cameras", "crop_shape")
+                     "cameras", "crop_shape", "obs_quaternions")
 #: The training-time options of the loss (``loss:``).
 LOSS_FIELDS = ("time_sampling", "time_max", "t0_fraction", "lambda_x", "lambda_tau")
 

@@ -17,7 +17,9 @@ controller keeps the last ``obs_horizon`` observations and feeds ``[oldest, late
 same inputs as for T_o = 2.
 
 Metadata (``metadata_props``, contract ``rfmp_rl.onnx/1``) describes inputs, horizons (including
-``obs_horizon``), the action manifold and limits; `deploy/` reads only that.
+``obs_horizon``), the action manifold and limits and, for a model trained on canonical quaternion
+signs (``ModelConfig.obs_quaternions``), ``observation_quaternions``: the columns the controller
+makes canonical the same way; `deploy/` reads only that.
 
 Reduced precision (``precision=``) changes the networks (observation encoder, UNet) only; the
 normalisers, the manifold maps and the solver steps stay float32, and so do the graph's inputs
@@ -213,6 +215,8 @@ def onnx_metadata(graph: InferenceGraph, control_rate_hz: float | None = None) -
             }
         ),
     }
+    if cfg.obs_quaternions:  # the controller makes these observed quaternions canonical
+        meta["observation_quaternions"] = json.dumps(cfg.obs_quaternions)
     return meta
 
 

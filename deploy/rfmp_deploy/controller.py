@@ -212,6 +212,7 @@ class Controller:
         """
         self._drop_plan()
         self._history.clear()
+        self.processor.reset()  # observed quaternions: new streams
         self._last_action = None
         self._last_frame, self._dropped = None, None
         if seed is not None:

@@ -20,6 +20,7 @@ __all__ = [
     "FORMAT",
     "InputSpec",
     "ObservationField",
+    "ObservedQuaternion",
     "PolicyMeta",
     "example_metadata",
     "parse_metadata",
@@ -53,10 +54,12 @@ REQUIRED_KEYS = (
 )
 
 #: Optional keys: T_o (default `DEFAULT_OBS_HORIZON`), the network's precision in the graph
-#: (default fp32) and how far the exported graph was measured from the float32 PyTorch policy
-#: (normalised action units).
+#: (default fp32), how far the exported graph was measured from the float32 PyTorch policy
+#: (normalised action units) and the observed quaternions whose signs the controller makes
+#: canonical (default none: the observation is fed as given, what models exported before the
+#: key read).
 PRECISIONS = ("fp32", "fp16", "int8", "int8-dynamic")
-OPTIONAL_KEYS = ("obs_horizon", "precision", "parity_max_abs_diff")
+OPTIONAL_KEYS = ("obs_horizon", "precision", "parity_max_abs_diff", "observation_quaternions")
 
 _DTYPES = {"float32": np.dtype(np.float32), "uint8": np.dtype(np.uint8)}
 #: Plausibility bounds: metadata outside them is refused at load (a typo, not a robot).
@@ -115,6 +118,31 @@ class ObservationField:
     dim: int
 
 
+@dataclass(frozen=True)
+class ObservedQuaternion:
+    """Four columns of the ``observation`` vector holding a quaternion whose sign the controller
+    makes canonical (`rfmp_deploy.observation.canonical_quaternion_signs`): continuity from frame
+    to frame, the first frame after `Controller.reset` in the hemisphere of ``reference``.
+
+    Attributes:
+        start: the first of the four columns.
+        reference: four numbers in the columns' order.
+
+    Example:
+        >>> meta = parse_metadata({**example_metadata(), "observation_quaternions":
+        ...     '[{"columns": [3, 7], "reference": [1, 0, 0, 0]}]'})
+        >>> meta.observation_quaternions
+        (ObservedQuaternion(start=3, reference=(1.0, 0.0, 0.0, 0.0)),)
+    """
+
+    start: int
+    reference: tuple[float, float, float, float]
+
+    @property
+    def columns(self) -> slice:
+        return slice(self.start, self.start + 4)
+
+
 @dataclass(frozen=True, eq=False)
 class PolicyMeta:
     """Everything the controller knows about a policy, read from its ONNX metadata.
@@ -142,6 +170,8 @@ class PolicyMeta:
             ``int8-dynamic``); inputs and output are float32 in every case.
         parity_max_abs_diff: max |graph - float32 PyTorch| measured at export (normalised action
             units), or None when the exporter did not record it.
+        observation_quaternions: the quaternion columns of ``observation`` made canonical
+            (empty: the observation is fed as given).
         extra: metadata keys outside the contract, verbatim.
 
     Example:
@@ -170,6 +200,7 @@ class PolicyMeta:
     noise_default: str
     precision: str = "fp32"
     parity_max_abs_diff: float | None = None
+    observation_quaternions: tuple[ObservedQuaternion, ...] = ()
     extra: dict[str, str] = field(default_factory=dict)
 
     @property
@@ -228,6 +259,11 @@ class PolicyMeta:
                   f" (max |graph - float32 policy| {self.parity_max_abs_diff:.3g} in normalised "
                   "action units at export)")
         lines.append(f"precision:    {self.precision}{parity}")
+        if self.observation_quaternions:
+            quats = ", ".join(f"[{q.start}:{q.start + 4}] from {list(q.reference)}"
+                              for q in self.observation_quaternions)
+            lines.append(f"quaternions:  observation {quats}: signs continuous, each stream "
+                         f"starting in its reference's hemisphere")
         return "\n".join(lines)
 
 
@@ -332,6 +368,40 @@ def _input_spec(r: _Reader, entry: Any, i: int) -> InputSpec:
             if crop is None:
                 raise r.error("inputs", f"{where}: 'crop' must be [h, w], got {entry['crop']!r}")
     return InputSpec(name, shape, dtype, kind, image_size, crop)
+
+
+def _observation_quaternions(r: _Reader, obs_dim: int) -> tuple[ObservedQuaternion, ...]:
+    key = "observation_quaternions"
+    if key not in r.props:
+        return ()
+    entries = r.json(key)
+    if not isinstance(entries, list):
+        raise r.error(key, f"expected a JSON list, got {entries!r}")
+    out: list[ObservedQuaternion] = []
+    for i, e in enumerate(entries):
+        shape = "{'columns': [a, a + 4], 'reference': [4 numbers]}"
+        if not isinstance(e, dict) or set(e) != {"columns", "reference"}:
+            raise r.error(key, f"entry {i} must be {shape}, got {e!r}")
+        cols, ref = e["columns"], e["reference"]
+        if (not isinstance(cols, list) or len(cols) != 2 or not all(
+                isinstance(c, int) and not isinstance(c, bool) for c in cols)
+                or cols[0] < 0 or cols[1] - cols[0] != 4):
+            raise r.error(key, f"entry {i}: columns must be [a, a + 4], got {cols!r}")
+        if cols[1] > obs_dim:
+            raise r.error(key, f"entry {i}: columns {cols} are outside the observation's "
+                               f"D_obs={obs_dim}")
+        numbers = isinstance(ref, list) and len(ref) == 4 and all(
+            isinstance(v, int | float) and not isinstance(v, bool) and math.isfinite(v)
+            for v in ref)
+        if not numbers or not any(ref):
+            raise r.error(key, f"entry {i}: reference must be 4 finite numbers, not all zero, "
+                               f"got {ref!r}")
+        for other in out:
+            if cols[0] < other.start + 4 and other.start < cols[1]:
+                raise r.error(key, f"entry {i}: columns {cols} overlap "
+                                   f"[{other.start}, {other.start + 4}]")
+        out.append(ObservedQuaternion(cols[0], tuple(float(v) for v in ref)))
+    return tuple(out)
 
 
 def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
@@ -456,6 +526,8 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
     if parity is not None and parity < 0:
         raise r.error("parity_max_abs_diff", f"must be >= 0, got {parity!r}")
 
+    quaternions = _observation_quaternions(r, obs_dim)
+
     return PolicyMeta(
         path=path,
         version=r.text("rfmp_rl.version"),
@@ -475,6 +547,7 @@ def parse_metadata(props: dict[str, str], path: str = "<model>") -> PolicyMeta:
         noise_default=default,
         precision=precision,
         parity_max_abs_diff=parity,
+        observation_quaternions=quaternions,
         extra={k: v for k, v in props.items() if k not in REQUIRED_KEYS + OPTIONAL_KEYS},
     )
 

@@ -6,6 +6,15 @@ The robot hands the controller a dict: each low-dimensional field named in the m
 keys, shapes, dtypes, NaN/inf) and produces a `Frame`: the concatenated ``observation`` vector
 and the camera images resized with OpenCV's ``INTER_AREA`` to the training image size, in CHW
 order — exactly what the exported graph expects (it centre-crops by itself).
+
+Quaternion signs: when the metadata lists ``observation_quaternions``, the processor makes those
+columns of the ``observation`` vector canonical frame by frame, as the training data held them:
+each takes the sign closest to the previous frame's, the first frame after `reset` the
+hemisphere of its reference (`canonical_quaternion_signs`, the numpy twin of
+``rfmp_rl.data.quaternions.canonical_quaternion_signs``, which documents why). Robots report
+either sign of the same rotation (``q`` and ``-q``), so the processor keeps one quaternion of
+state per field; `Controller.reset` resets it. Metadata without the key: the observation is fed
+as given.
 """
 
 from __future__ import annotations
@@ -19,7 +28,8 @@ import numpy as np
 
 from rfmp_deploy.metadata import PolicyMeta
 
-__all__ = ["Frame", "ObservationError", "ObservationProcessor", "stack_window"]
+__all__ = ["Frame", "ObservationError", "ObservationProcessor", "canonical_quaternion_signs",
+           "stack_window"]
 
 
 class ObservationError(ValueError):
@@ -34,6 +44,39 @@ class ObservationError(ValueError):
         missing key 'eef_pos' (3 value(s)); missing key 'eef_quat' (4 value(s));
         missing camera 'wrist'
     """
+
+
+def canonical_quaternion_signs(
+    q: np.ndarray,
+    reference: Sequence[float] | np.ndarray = (0.0, 0.0, 0.0, 1.0),
+    *,
+    previous: np.ndarray | None = None,
+) -> np.ndarray:
+    """The sign rule along a stream ``(..., T, 4)``: ``p_{-1} = reference`` (or ``previous``,
+    the stream's last canonical sample), ``p_k = q_k`` if ``<q_k, p_{k-1}> >= 0`` else
+    ``-q_k``. The numpy twin of ``rfmp_rl.data.quaternions.canonical_quaternion_signs`` (this
+    package does not import rfmp_rl; a test checks that the two agree).
+
+    Example:
+        >>> hand = np.array([[-1.0, 0, 0, 0.01], [1.0, 0, 0, 0.01], [-1.0, 0, 0, -0.01]])
+        >>> canonical_quaternion_signs(hand, (1.0, 0, 0, 0))[:, 0].tolist()
+        [1.0, 1.0, 1.0]
+    """
+    q = np.asarray(q)
+    if q.ndim < 2 or q.shape[-1] != 4:
+        raise ValueError(f"canonical_quaternion_signs: expected shape (..., T, 4), got {q.shape}")
+    if q.shape[-2] == 0:
+        return q.copy()
+    start = np.asarray(reference if previous is None else previous, dtype=q.dtype)
+    first = (q[..., :1, :] * start[..., None, :]).sum(-1)  # (..., 1)
+    dots = np.concatenate([first, (q[..., 1:, :] * q[..., :-1, :]).sum(-1)], axis=-1)
+    # s_k = s_{k-1} * sign(d_k), and s_k = +1 where d_k == 0 (k >= 1)
+    running = np.cumprod(np.where(dots < 0, -1.0, 1.0), axis=-1)
+    steps = np.broadcast_to(np.arange(dots.shape[-1]), dots.shape)
+    restart = (dots == 0) & (steps > 0)
+    last = np.maximum.accumulate(np.where(restart, steps, 0), axis=-1)
+    base = np.where(last > 0, np.take_along_axis(running, last, axis=-1), 1.0)
+    return (q * (running * base)[..., None]).astype(q.dtype, copy=False)
 
 
 @dataclass(frozen=True)
@@ -101,7 +144,14 @@ class ObservationProcessor:
         self.meta = meta
         self.fields = meta.observation_keys
         self.cameras = meta.image_inputs
+        self.quaternions = meta.observation_quaternions
         self._cv2 = _cv2() if self.cameras else None
+        self._previous: list[np.ndarray] | None = None  # last canonical quaternion per field
+
+    def reset(self) -> None:
+        """Start new quaternion streams: the next frame's quaternions take their references'
+        hemispheres (`Controller.reset` calls it)."""
+        self._previous = None
 
     def __call__(self, observation: Mapping[str, Any]) -> Frame:
         """Validate and preprocess one observation.
@@ -132,7 +182,22 @@ class ObservationProcessor:
         if problems:
             raise ObservationError("; ".join(problems))
         lowdim = np.concatenate(parts).astype(np.float32) if self.fields else None
+        if lowdim is not None and self.quaternions:
+            lowdim = self._canonical(lowdim)
         return Frame(lowdim, images)
+
+    def _canonical(self, lowdim: np.ndarray) -> np.ndarray:
+        """Canonical signs of the quaternion columns (one frame of each stream); only a frame
+        that passed every check gets here, so a rejected one leaves the streams as they were."""
+        previous = []
+        for i, q in enumerate(self.quaternions):
+            start = (np.asarray(q.reference, np.float32) if self._previous is None
+                     else self._previous[i])
+            value = canonical_quaternion_signs(lowdim[None, q.columns], previous=start)[0]
+            lowdim[q.columns] = value
+            previous.append(value.copy())
+        self._previous = previous
+        return lowdim
 
     def _lowdim(self, key: str, dim: int, value: Any, problems: list[str]) -> np.ndarray | None:
         try:

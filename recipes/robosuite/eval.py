@@ -24,7 +24,7 @@ from recipes.common import load_for_eval, report, run_sweep, show, upgrade_argv
 def evaluate_checkpoint(cfg: DictConfig) -> list[dict]:
     """Run the sweep on ``cfg.checkpoint``; returns the table rows."""
     model, task_cfg, extra, out = load_for_eval(cfg, check_config)
-    task = eval_task(task_cfg)
+    task = eval_task(task_cfg, model)
     rows = run_sweep(model, task_cfg, task, progress=show(task))
     title = (f"{task_cfg.task} {task_cfg.obs} {task_cfg.action_space}: {task_cfg.algo} "
              f"({task_cfg.model.unet_preset}, step {extra.get('step')}, "

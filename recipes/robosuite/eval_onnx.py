@@ -130,7 +130,7 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     ref = OmegaConf.merge(task, {"eval": {"sampling": "deterministic", "nfes": [nfe],
                                           "t_ends": [t_end], "time_table": []}})
     seeds = list(range(int(ref.eval.seed_start), int(ref.eval.seed_start) + int(ref.eval.seeds)))
-    (row,) = run_sweep(model, ref, eval_task(ref))
+    (row,) = run_sweep(model, ref, eval_task(ref, model))
     torch_row = {**row, "per_seed": [int(v) for v in row["per_seed"]["success"]]}
     print(f"  PyTorch NFE={nfe} (deterministic): success {torch_row['success']:.2f} "
           f"({torch_row['seconds']:.0f} s)")

@@ -26,6 +26,11 @@ from recipes.common import (
 )
 from rfmp_rl import keys
 from rfmp_rl.data import DemonstrationStore, read_robomimic
+from rfmp_rl.data.quaternions import (
+    canonical_quaternion_signs,
+    canonicalize_observation_quaternions,
+    parse_observation_quaternions,
+)
 from rfmp_rl.envs.robosuite import (
     ROBOSUITE_CONTROL_FREQ,
     ROBOSUITE_LOW_DIM_KEYS,
@@ -34,6 +39,7 @@ from rfmp_rl.envs.robosuite import (
     ROBOSUITE_TASKS,
     low_dim_key_dims,
     make_robosuite_env,
+    robosuite_obs_quaternions,
 )
 from rfmp_rl.eval import Column, seed_max, seed_mean
 from rfmp_rl.eval.metrics import jerk
@@ -44,7 +50,12 @@ CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
 CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in the checkpoints and ONNX metadata
 #: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
+#: (``obs_quaternions`` is guarded by the model config a resume compares: a run made before
+#: it resumes with ``obs_quaternions=raw``.)
 TASK_KEYS = ("task", "obs", "action_space", "geometry")
+#: The hemisphere of the first abs_pose action quaternion (xyzw): the hand pointing down, the
+#: reference of the observed ``robot0_eef_quat`` (`robosuite_obs_quaternions`).
+HAND_REFERENCE = (1.0, 0.0, 0.0, 0.0)
 
 #: The paper's success rates on the state-based robomimic tasks (its table "Success rate as a
 #: function of different NFE values on the state-based Robomimic tasks"), at T = 1
@@ -62,6 +73,9 @@ def check_config(cfg: DictConfig) -> None:
         raise ValueError(f"action_space must be 'delta' or 'abs_pose', got {cfg.action_space!r}")
     if cfg.geometry not in ("riemannian", "euclidean"):
         raise ValueError(f"geometry must be 'riemannian' or 'euclidean', got {cfg.geometry!r}")
+    if cfg.get("obs_quaternions", "raw") not in ("canonical", "raw"):
+        raise ValueError(f"obs_quaternions must be 'canonical' or 'raw', got "
+                         f"{cfg.obs_quaternions!r}")
     check_runtime_config(cfg)
 
 
@@ -73,6 +87,14 @@ def low_dim_keys(cfg: DictConfig) -> tuple[str, ...]:
     """The low-dim keys of ``observation``: all four with state observations, robomimic's
     proprioception alone (no object state) with images."""
     return ROBOSUITE_PROPRIO_KEYS if cfg.obs == "image" else ROBOSUITE_LOW_DIM_KEYS
+
+
+def obs_quaternions(cfg: DictConfig) -> list[dict] | None:
+    """The observed quaternions made canonical (``obs_quaternions=canonical``): columns of
+    ``observation`` and references (`robosuite_obs_quaternions`); None with ``raw``."""
+    if cfg.get("obs_quaternions", "raw") != "canonical":
+        return None
+    return robosuite_obs_quaternions(cfg.task, low_dim_keys(cfg))
 
 
 def low_dim_sizes(cfg: DictConfig) -> list[list]:
@@ -109,22 +131,33 @@ def ensure_demos(cfg: DictConfig) -> Path:
 @functools.lru_cache(maxsize=2)
 def _read(path: str, images: bool):
     keys_ = list(ROBOSUITE_LOW_DIM_KEYS) + (list(CAMERAS) if images else [])
-    # Raw signs: the policy sees robosuite's eef quaternion as the environment reports it at
-    # evaluation, so the training observations keep the recorded signs too.
+    # Raw signs here: `policy_episodes` applies the recipe's rule to the observation vector, as
+    # the evaluation env and the controller do (the reader's default first-sample hemisphere,
+    # w >= 0, is the boundary the Panda's downward hand sits on).
     return read_robomimic(path, obs_keys=keys_, load_images=images, raw_quaternion_signs=True)
 
 
 def policy_episodes(raw: list[TensorDict], cfg: DictConfig) -> list[TensorDict]:
     """robomimic episodes -> ``observation`` (the low-dim keys concatenated in robomimic's order),
-    camera images, and ``action`` (abs_pose quaternions made hemisphere-continuous)."""
+    camera images, and ``action``.
+
+    With ``obs_quaternions=canonical`` the observed quaternions (`obs_quaternions`) and the
+    abs_pose action quaternion follow one rule, `canonical_quaternion_signs`: continuity along
+    the episode, the first sample in its reference's hemisphere (the action's: the hand's,
+    `HAND_REFERENCE`). With ``raw`` (runs made before the rule) the observations keep the
+    recorded signs and the action quaternions are only made continuous from the first one."""
+    fields = parse_observation_quaternions(obs_quaternions(cfg))
     out = []
     for ep in raw:
         n = ep.batch_size[0]
         obs = torch.cat([ep["obs", k].float().reshape(n, -1) for k in low_dim_keys(cfg)], -1)
+        if fields:
+            obs = canonicalize_observation_quaternions(obs, fields)
         action = ep["action"].float()
         if pose_action(cfg):
-            action = torch.cat([action[:, :3], hemisphere_continuous(action[:, 3:7]),
-                                action[:, 7:]], dim=-1)
+            quat = (canonical_quaternion_signs(action[:, 3:7], HAND_REFERENCE) if fields
+                    else hemisphere_continuous(action[:, 3:7]))
+            action = torch.cat([action[:, :3], quat, action[:, 7:]], dim=-1)
         sample = TensorDict({keys.OBSERVATION: obs, keys.ACTION: action}, [n])
         if cfg.obs == "image":
             for cam in CAMERAS:
@@ -168,6 +201,7 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         action_manifold=action_manifold,
         obs_dim=obs_dim,
         obs_manifold=f"R3 x S3 x R{obs_dim - 7}",  # the eef quaternion is left unnormalised
+        obs_quaternions=obs_quaternions(cfg),
         obs_keys=obs_keys,
         cameras={cam: [3, 84, 84] for cam in CAMERAS} if cfg.obs == "image" else {},
         crop_shape=[76, 76] if cfg.obs == "image" else None,
@@ -200,9 +234,13 @@ def make_env_actor(model, cfg: DictConfig, nfe: int, t_end: float):
     return actor
 
 
-def env_kwargs(cfg: DictConfig) -> dict:
-    """`make_robosuite_env`'s settings (besides the batch and the seeds)."""
+def env_kwargs(cfg: DictConfig, model=None) -> dict:
+    """`make_robosuite_env`'s settings (besides the batch and the seeds). The observed
+    quaternions' rule is the model's (``model.cfg.obs_quaternions``: None for checkpoints made
+    before it, whose policies read raw signs), else the one ``cfg`` trains with."""
+    quaternions = obs_quaternions(cfg) if model is None else model.cfg.obs_quaternions
     return {"task": cfg.task, "obs_horizon": cfg.model.obs_horizon,
+            "obs_quaternions": quaternions,
             "action_space": cfg.action_space,
             "cameras": tuple(c.removesuffix("_image") for c in CAMERAS)
             if cfg.obs == "image" else (),
@@ -237,11 +275,12 @@ def summary(values) -> dict:
             "quat_norm_err": seed_max(values["quat_norm_err"])}
 
 
-def eval_task(cfg: DictConfig) -> TaskEval:
-    """The robosuite evaluation of ``cfg``: env, actor, figures and table."""
+def eval_task(cfg: DictConfig, model=None) -> TaskEval:
+    """The robosuite evaluation of ``cfg``: env, actor, figures and table. Give the evaluated
+    ``model`` so that its env applies the model's observed-quaternion rule (`env_kwargs`)."""
     actions = cfg.action_space + ("" if not pose_action(cfg) else f"/{cfg.geometry}")
     return TaskEval(
-        env_fn=make_robosuite_env, env_kwargs=env_kwargs(cfg),
+        env_fn=make_robosuite_env, env_kwargs=env_kwargs(cfg, model),
         make_actor=lambda model, nfe, t_end: make_env_actor(model, cfg, nfe, t_end),
         metrics=metrics(cfg), summary=summary,
         columns=[Column("success", "success", "{:.2f}", paper=True),

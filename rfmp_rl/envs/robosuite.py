@@ -20,6 +20,13 @@ image setting):
   stale (robosuite's own ``object-state`` reports zeros for the relative part right after a
   reset and relative values one step old while the object moves).
 
+Quaternion signs: the entries above keep the signs robosuite and MuJoCo give (the hand's body
+quaternion is continuous along a trajectory; ``obj_to_eef_quat`` comes from robosuite's
+``mat2quat``, which puts ``w >= 0`` and so jumps whenever the relative rotation crosses a
+half-turn, as it does for an upright object under a downward hand). `make_robosuite_env`
+with ``obs_quaternions`` (`robosuite_obs_quaternions`) makes them canonical in ``observation``,
+as the recipe's training data holds them (`rfmp_rl.data.quaternions.canonical_quaternion_signs`).
+
 Cameras (optional): ``agentview_image`` and ``robot0_eye_in_hand_image`` ``(N, 3, H, W) uint8``
 (84 x 84 by default), flipped upright as robomimic stores them.
 
@@ -57,7 +64,7 @@ from torchrl.data import Bounded, Categorical, Composite, Unbounded
 from torchrl.envs import EnvBase, TransformedEnv
 
 from rfmp_rl import keys
-from rfmp_rl.envs.transforms import observation_windows
+from rfmp_rl.envs.transforms import QuaternionSigns, observation_windows
 
 __all__ = [
     "RobosuiteEnv",
@@ -75,6 +82,7 @@ __all__ = [
     "ROBOSUITE_LOW_DIM_KEYS",
     "ROBOSUITE_PROPRIO_KEYS",
     "low_dim_key_dims",
+    "robosuite_obs_quaternions",
     "ROBOSUITE_CONTROL_FREQ",
     "OSC_POS_SCALE",
     "OSC_ROT_SCALE",
@@ -95,6 +103,47 @@ def low_dim_key_dims(task: str) -> dict[str, int]:
     """Size of each low-dim observation key of ``task``, in `ROBOSUITE_LOW_DIM_KEYS` order."""
     return {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
             "object": ROBOSUITE_OBJECT_DIMS[task]}
+#: References of the observed quaternions (xyzw; `robosuite_obs_quaternions`): the Panda's hand
+#: points down at reset, a half-turn about world x, and so does an upright object seen from it;
+#: objects in the world frame start upright (a turn about z from the identity).
+_HALF_TURN_X = (1.0, 0.0, 0.0, 0.0)
+_IDENTITY = (0.0, 0.0, 0.0, 1.0)
+_OBJECT_QUATERNIONS = {  # offset in the object state -> reference
+    "Lift": {3: _IDENTITY},  # cube_quat
+    "PickPlaceCan": {3: _HALF_TURN_X, 10: _IDENTITY},  # obj_to_eef_quat, obj_quat
+    "NutAssemblySquare": {3: _HALF_TURN_X, 10: _IDENTITY},
+}
+
+
+def robosuite_obs_quaternions(
+    task: str, low_dim_keys: Sequence[str] = ROBOSUITE_LOW_DIM_KEYS
+) -> list[dict[str, list]]:
+    """The quaternions of ``observation`` (the ``low_dim_keys`` concatenated) and the reference
+    whose hemisphere each stream starts in (`rfmp_rl.data.quaternions.ObservedQuaternion`):
+    ``robot0_eef_quat`` (reference: the hand pointing down, ``x = 1``; robosuite's hand starts
+    within a few degrees of it, so the first frame is far from the boundary, where ``w >= 0``
+    would be on it) and the object state's quaternions.
+
+    Example:
+        >>> [q["columns"] for q in robosuite_obs_quaternions("PickPlaceCan")]
+        [[3, 7], [12, 16], [19, 23]]
+        >>> robosuite_obs_quaternions("Lift", ROBOSUITE_PROPRIO_KEYS)
+        [{'columns': [3, 7], 'reference': [1.0, 0.0, 0.0, 0.0]}]
+    """
+    if task not in ROBOSUITE_TASKS:
+        raise ValueError(f"robosuite task must be one of {ROBOSUITE_TASKS}, got {task!r}")
+    dims, out, start = low_dim_key_dims(task), [], 0
+    for key in low_dim_keys:
+        if key == "robot0_eef_quat":
+            out.append({"columns": [start, start + 4], "reference": list(_HALF_TURN_X)})
+        elif key == "object":
+            for offset, ref in _OBJECT_QUATERNIONS[task].items():
+                out.append({"columns": [start + offset, start + offset + 4],
+                            "reference": list(ref)})
+        start += dims[key]
+    return out
+
+
 #: OSC_POSE delta output limits per unit action: metres and radians.
 OSC_POS_SCALE = 0.05
 OSC_ROT_SCALE = 0.5
@@ -506,9 +555,14 @@ def make_robosuite_env(
     batch_size: Sequence[int] | torch.Size,
     *,
     obs_horizon: int = 2,
+    obs_quaternions: Sequence[dict] | None = None,
     **env_kwargs,
 ) -> TransformedEnv:
     """`RobosuiteEnv` with the observation windows an RFMP policy reads.
+
+    ``obs_quaternions`` (``ModelConfig.obs_quaternions``, e.g. `robosuite_obs_quaternions`):
+    `QuaternionSigns` makes those columns of ``observation`` canonical first, frame by frame
+    (None: the raw signs, what models trained before the rule read).
 
     ``obs_window (N, 2, D)`` = ``[o^{s-T_o}, o^{s-1}]``, the oldest and the latest of the last
     ``obs_horizon`` (T_o) observations (after a reset the first is repeated); each camera adds
@@ -526,4 +580,6 @@ def make_robosuite_env(
     env = RobosuiteEnv(task, batch_size, **env_kwargs)
     cameras = {f"{cam}_image": f"{cam}_image_window" for cam in env.cameras}
     windows = observation_windows(obs_horizon, {keys.OBSERVATION: keys.OBS_WINDOW}, cameras)
+    if obs_quaternions:
+        windows.insert(0, QuaternionSigns(obs_quaternions))
     return TransformedEnv(env, windows)

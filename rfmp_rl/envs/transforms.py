@@ -14,12 +14,15 @@ Per observation the transforms are::
 
 and ``InitTracker`` (the ``is_init`` entry ``MultiStepActorWrapper`` re-plans on).
 `window_transforms` reads the keys a `FlowPolicy` needs from the policy; `observation_windows`
-takes them explicitly (the library's own envs use it).
+takes them explicitly (the library's own envs use it). `QuaternionSigns` goes before them when
+the observation holds quaternions whose signs the policy was trained canonical
+(`rfmp_rl.data.quaternions.canonical_quaternion_signs`).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
+from typing import Any
 
 import torch
 from tensordict import TensorDictBase
@@ -30,8 +33,14 @@ from torchrl.envs import CatFrames, Compose, InitTracker, UnsqueezeTransform
 from torchrl.envs.transforms import Transform
 
 from rfmp_rl import keys
+from rfmp_rl.data.quaternions import (
+    ObservedQuaternion,
+    canonical_quaternion_signs,
+    parse_observation_quaternions,
+)
 
-__all__ = ["ContextWindow", "observation_windows", "window_transforms", "step_key"]
+__all__ = ["ContextWindow", "QuaternionSigns", "observation_windows", "window_transforms",
+           "step_key"]
 
 
 def step_key(window_key: NestedKey) -> NestedKey:
@@ -126,6 +135,90 @@ class ContextWindow(Transform):
             observation_spec.shape, dtype=torch.float32, device=observation_spec.device
         )
         return observation_spec
+
+
+class QuaternionSigns(Transform):
+    """Canonical quaternion signs in observation vectors, frame by frame, as the training data
+    holds them (`rfmp_rl.data.quaternions.canonical_quaternion_signs`).
+
+    Each quaternion field of each env instance is a stream: after a reset its first frame takes
+    the field's reference hemisphere, every later frame the sign closest to the frame before.
+    The state is the last canonical quaternion per instance and field; a ``_reset`` mask resets
+    only the instances it selects. The entries are overwritten in place (the env's other
+    entries, e.g. robosuite's ``robot0_eef_quat``, keep the raw signs).
+
+    Args:
+        fields: the quaternion columns (`ObservedQuaternion` s or their dicts,
+            ``ModelConfig.obs_quaternions``).
+        in_keys: the observation vectors ``(*batch, D)`` (default ``observation``).
+
+    Example:
+        >>> from tensordict import TensorDict
+        >>> t = QuaternionSigns([{"columns": [0, 4], "reference": [1.0, 0.0, 0.0, 0.0]}])
+        >>> obs = lambda x, w: TensorDict({"observation": torch.tensor([[x, 0.0, 0.0, w]])}, [1])
+        >>> t._reset(obs(0.0, 0.0), obs(-1.0, 0.01))["observation"][0, [0, 3]].tolist()
+        [1.0, -0.009999999776482582]
+        >>> t._call(obs(1.0, 0.01))["observation"][0, [0, 3]].tolist()  # continuity: kept
+        [1.0, 0.009999999776482582]
+    """
+
+    def __init__(
+        self,
+        fields: Sequence[ObservedQuaternion | Mapping[str, Any]],
+        in_keys: Sequence[NestedKey] = (keys.OBSERVATION,),
+    ) -> None:
+        super().__init__(in_keys=list(in_keys), out_keys=list(in_keys))
+        self.fields = parse_observation_quaternions(fields)
+        if not self.fields:
+            raise ValueError("QuaternionSigns: no quaternion fields given")
+        self._references = torch.tensor([f.reference for f in self.fields])  # (F, 4)
+        self._previous: dict[NestedKey, torch.Tensor] = {}  # key -> (*batch, F, 4)
+
+    def _canonical(self, key: NestedKey, value: torch.Tensor,
+                   reset: torch.Tensor | None) -> torch.Tensor:
+        refs = self._references.to(value).expand(*value.shape[:-1], len(self.fields), 4)
+        previous = self._previous.get(key)
+        if previous is None or previous.shape != refs.shape:
+            start = refs  # first frames: the references' hemispheres
+        elif reset is None:
+            start = previous
+        else:
+            start = torch.where(reset.reshape(*reset.shape, 1, 1), refs, previous.to(value))
+        out = value.clone()
+        for i, f in enumerate(self.fields):
+            if f.start + 4 > value.shape[-1]:
+                raise ValueError(f"QuaternionSigns: {key!r} has {value.shape[-1]} values, the "
+                                 f"quaternion columns {f.to_dict()['columns']} do not fit")
+            q = value[..., f.columns].unsqueeze(-2)  # (*batch, 1, 4): one frame of the stream
+            out[..., f.columns] = canonical_quaternion_signs(
+                q, previous=start[..., i, :]).squeeze(-2)
+        self._previous[key] = torch.stack([out[..., f.columns] for f in self.fields], -2)
+        return out
+
+    def _canonicalize_entries(self, tensordict: TensorDictBase,
+                              reset: torch.Tensor | None) -> TensorDictBase:
+        for key in self.in_keys:
+            value = tensordict.get(key, None)
+            if value is None:
+                raise KeyError(f"QuaternionSigns: no entry {key!r} (keys: "
+                               f"{sorted(map(str, tensordict.keys(True, True)))})")
+            tensordict.set(key, self._canonical(key, value, reset))
+        return tensordict
+
+    def _call(self, next_tensordict: TensorDictBase) -> TensorDictBase:
+        return self._canonicalize_entries(next_tensordict, None)
+
+    forward = _call
+
+    def _reset(self, tensordict: TensorDictBase, tensordict_reset: TensorDictBase
+               ) -> TensorDictBase:
+        mask = None if tensordict is None else tensordict.get("_reset", None)
+        if mask is not None:
+            mask = mask.reshape(tensordict_reset.batch_size)
+        else:
+            mask = torch.ones(tensordict_reset.batch_size, dtype=torch.bool,
+                              device=tensordict_reset.device)
+        return self._canonicalize_entries(tensordict_reset, mask)
 
 
 def observation_windows(

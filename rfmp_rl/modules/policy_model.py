@@ -70,6 +70,9 @@ class ModelConfig:
     obs_dim: int = 0  # low-dimensional observation size per step (0: images only)
     obs_manifold: str | dict | None = None  # e.g. "S2 x S2" keeps sphere parts unnormalised
     obs_keys: list[list] | None = None  # [[name, dim], ...] concatenated into the obs vector
+    # observed quaternions whose signs the data, the env and the controller make canonical:
+    # [{"columns": [a, a + 4], "reference": [4]}, ...] (rfmp_rl.data.quaternions); None: raw
+    obs_quaternions: list[dict] | None = None
     cameras: dict[str, list[int]] = field(default_factory=dict)  # name -> [C, H, W]
     crop_shape: list[int] | None = None  # (H, W) crop of every camera
     vision_pool: str = "spatial_softmax"  # or "avg"
@@ -110,6 +113,11 @@ class ModelConfig:
             )
         if self.obs_horizon < 2:
             raise ValueError(f"ModelConfig.obs_horizon (T_o) must be >= 2, got {self.obs_horizon}")
+        if self.obs_quaternions is not None:
+            from rfmp_rl.data.quaternions import parse_observation_quaternions
+
+            self.obs_quaternions = [q.to_dict() for q in parse_observation_quaternions(
+                self.obs_quaternions, self.obs_dim)]
         if self.down_dims is None and self.unet_preset not in UNET_PRESETS:
             raise ValueError(
                 f"ModelConfig.unet_preset must be one of {sorted(UNET_PRESETS)}, "
