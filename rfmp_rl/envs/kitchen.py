@@ -258,6 +258,11 @@ class DLSController:
         self.kp = np.array(self.model.actuator_gainprm[:9, 0], dtype=np.float64)
         self.joint_damping = np.array(self.model.dof_damping[:9], dtype=np.float64)
         self.vel_scale = np.array(robot.act_rng, dtype=np.float64)  # action 1 -> 2 rad/s
+        margin = 0.05  # rad kept from each arm joint limit
+        self.limits = np.stack([
+            np.maximum(self.model.jnt_range[:7, 0], robot.robot_pos_bound[:7, 0]) + margin,
+            np.minimum(self.model.jnt_range[:7, 1], robot.robot_pos_bound[:7, 1]) - margin,
+        ], axis=1)
         self._jacp = np.zeros((3, self.model.nv))
         self._jacr = np.zeros((3, self.model.nv))
 
@@ -284,11 +289,23 @@ class DLSController:
         mujoco.mj_jacSite(self.model, self.data, self._jacp, self._jacr, self.site)
         jac = np.vstack([self._jacp[:, :7], self._jacr[:, :7]])  # (6, 7)
         err = np.concatenate([e_pos, e_rot])
-        jjt = jac @ jac.T + self.damping**2 * np.eye(6)
-        dq = jac.T @ np.linalg.solve(jjt, err)
         q = self.data.qpos[:7]
-        pinv = jac.T @ np.linalg.solve(jjt, jac)
-        dq += (np.eye(7) - pinv) @ (self.nullspace_gain * (self.rest_qpos - q))
+        low, high = self.limits[:, 0], self.limits[:, 1]
+        free = np.ones(7, dtype=bool)
+        held_dq = np.zeros(7)
+        for _ in range(7):  # joints that would cross their limit are held there (active set)
+            jf = jac * free
+            jjt = jf @ jf.T + self.damping**2 * np.eye(6)
+            dq = jf.T @ np.linalg.solve(jjt, err)
+            pinv = jf.T @ np.linalg.solve(jjt, jf)
+            dq += (np.eye(7) - pinv) @ (self.nullspace_gain * (self.rest_qpos - q) * free)
+            fix = free & (((q + dq) < low) | ((q + dq) > high))
+            if not fix.any():
+                break
+            held_dq[fix] = np.clip(q + dq, low, high)[fix] - q[fix]
+            err = err - jac[:, fix] @ held_dq[fix]
+            free &= ~fix
+        dq = np.where(free, dq, held_dq)
         fingers = np.clip(pose[7:9], 0.0, _FINGER_MAX)
         dq_all = np.concatenate([dq, fingers - self.data.qpos[7:9]])
         # servo target: q + dq, plus what gravity and joint damping will take off it
