@@ -51,7 +51,7 @@ from rfmp_rl.envs.kitchen import (
 )
 
 __all__ = ["KitchenExpert", "run_expert_episode", "evaluate_expert", "generate_demos",
-           "FORWARD", "DOWN"]
+           "write_minari_kitchen", "FORWARD", "DOWN", "HOME"]
 
 #: Site frame columns (x, y, z) in the world: gripper pointing +y, fingers closing along x.
 FORWARD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
@@ -365,6 +365,135 @@ def evaluate_expert(n_episodes: int = 100, *, seed_start: int = 0, verbose: bool
         print(json.dumps(result), flush=True)
     return result
 
+
+
+def _spaces(inst: KitchenInstance) -> tuple[Any, Any]:
+    """The data set's spaces: the kitchen env's observation Dict (as in ``D4RL/kitchen``) and
+    the action Dict of ``ee_pose`` and ``joint_velocity``."""
+    from gymnasium import spaces
+
+    low = np.array([-np.inf] * 7 + [0.0, 0.0])
+    high = np.array([np.inf] * 7 + [0.04, 0.04])
+    action_space = spaces.Dict({
+        "ee_pose": spaces.Box(low, high, dtype=np.float64),
+        "joint_velocity": spaces.Box(-1.0, 1.0, (9,), dtype=np.float64),
+    })
+    return inst.sim.observation_space, action_space
+
+
+def write_minari_kitchen(path: str | Path, records: Sequence[dict[str, Any]], *,
+                         dataset_id: str = "rfmp/kitchen-expert-v0",
+                         extra_metadata: dict[str, Any] | None = None) -> Path:
+    """Write expert episodes (`run_expert_episode` records) as a Minari dataset at ``path``.
+
+    The folder gets Minari's layout (``data/metadata.json``, ``data/main_data.hdf5``, one
+    ``episode_<i>`` group per record), written through Minari's own storage class, so
+    ``minari.MinariDataset(path / "data")`` and `rfmp_rl.data.read_minari` both read it.
+    Observations follow ``D4RL/kitchen``'s Dict (``observation (T+1, 59)``,
+    ``achieved_goal`` / ``desired_goal`` per task); actions are a Dict of ``ee_pose (T, 9)``
+    and ``joint_velocity (T, 9)``. The episode's seed is stored as Minari does (its ``seed``
+    attribute).
+
+    Raises:
+        FileExistsError: ``path`` already holds a dataset (nothing is overwritten).
+    """
+    from minari.data_collector.episode_buffer import EpisodeBuffer
+    from minari.dataset.minari_storage import MinariStorage
+
+    path = Path(path)
+    data = path / "data"
+    if (data / "metadata.json").exists():
+        raise FileExistsError(f"{data / 'metadata.json'}: a Minari dataset is already there; "
+                              "remove it or choose another --out")
+    if not records:
+        raise ValueError("write_minari_kitchen: no episodes to write")
+    data.mkdir(parents=True, exist_ok=True)
+    inst = KitchenInstance()
+    obs_space, act_space = _spaces(inst)
+    inst.close()
+    storage = MinariStorage.new(data, observation_space=obs_space, action_space=act_space,
+                                jpeg_encoding=False)
+    storage.update_episodes([
+        EpisodeBuffer(id=i, seed=int(rec["seed"]), observations=rec["observations"],
+                      actions=rec["actions"], rewards=rec["rewards"],
+                      terminations=rec["terminations"], truncations=rec["truncations"],
+                      infos={})
+        for i, rec in enumerate(records)
+    ])
+    import minari
+
+    storage.update_metadata({
+        "dataset_id": dataset_id,
+        "minari_version": minari.__version__,
+        "algorithm_name": "KitchenExpert (recipes/kitchen/experts.py)",
+        **(extra_metadata or {}),
+    })
+    return path
+
+
+def generate_demos(
+    n_success: int,
+    path: str | Path,
+    *,
+    seed_start: int = 0,
+    max_attempts: int | None = None,
+    verbose: bool = True,
+    **expert_kwargs: Any,
+) -> dict[str, Any]:
+    """Collect ``n_success`` successful expert episodes (all four subtasks) and write them with
+    `write_minari_kitchen`.
+
+    The expert runs from seeds ``seed_start, seed_start + 1, ...``; failed episodes are dropped
+    (their seeds are listed). The metadata holds ``expert`` (settings, success rate, attempts,
+    kept seeds) and ``control_freq_hz``.
+
+    Raises:
+        RuntimeError: fewer than ``n_success`` successes within ``max_attempts`` (default
+            ``2 * n_success + 20``; nothing is written).
+
+    Example::
+
+        info = generate_demos(2, "/tmp/kitchen-demo")
+        info["successes"]  # 2
+    """
+    from rfmp_rl.envs.kitchen import KITCHEN_CONTROL_FREQ
+
+    if n_success < 1:
+        raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
+    max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
+    inst = KitchenInstance()
+    expert = KitchenExpert(**expert_kwargs)
+    records, failed = [], []
+    seed = seed_start
+    start = time.perf_counter()
+    while len(records) < n_success and seed - seed_start < max_attempts:
+        rec = run_expert_episode(inst, expert, seed)
+        rec["seed"] = seed
+        (records if rec["success"] else failed).append(rec if rec["success"] else seed)
+        if verbose:
+            print(f"[kitchen] seed {seed}: {'ok' if rec['success'] else 'FAILED'} "
+                  f"({rec['steps']} steps) {len(records)}/{n_success}", flush=True)
+        seed += 1
+    seconds = time.perf_counter() - start
+    inst.close()
+    attempts = seed - seed_start
+    if len(records) < n_success:
+        raise RuntimeError(f"generate_demos: only {len(records)} of {n_success} successes in "
+                           f"{attempts} attempts; failed seeds: {failed}")
+    rate = len(records) / attempts
+    kept = [r["seed"] for r in records]
+    write_minari_kitchen(path, records, extra_metadata={
+        "control_freq_hz": KITCHEN_CONTROL_FREQ,
+        "expert": {**expert.info(), "success_rate": rate, "successes": len(records),
+                   "attempts": attempts, "seeds": kept},
+    })
+    result = {"path": str(path), "successes": len(records), "attempts": attempts,
+              "success_rate": rate, "seeds": kept, "failed_seeds": failed,
+              "steps": int(sum(r["steps"] for r in records)),
+              "seconds_per_episode": seconds / attempts}
+    if verbose:
+        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+    return result
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Command line: generate demos, or ``--evaluate N`` to measure the expert's success rate.

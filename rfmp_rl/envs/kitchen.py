@@ -20,8 +20,9 @@ Controller (`DLSController`): the kitchen env turns a velocity ``v`` into the po
 ``q_obs + v dt`` of MuJoCo position servos (``dt = 0.08`` s, ``kp`` 870 / 120, joint damping 100 /
 10, no gravity compensation). One DLS step ``dq = J^T (J J^T + lambda^2 I)^{-1} e`` on the
 site Jacobian of the true state (``e``: the position error and the rotation vector of
-``R_target R^T``, capped at 6 cm and 0.35 rad per step), a null-space pull towards the reset
-posture, and feed-forward terms for gravity (``qfrc_bias / kp``) and joint damping
+``R_target R^T``, capped at 6 cm and 0.35 rad per step; joints that would cross a limit are
+held at it and the rest re-solved), a null-space pull towards the reset posture, the step
+scaled to at most 0.1 rad per joint, and feed-forward terms for gravity (``qfrc_bias / kp``) and joint damping
 (``damping * dq / (dt kp)``) give the servo target. Measured tracking error on
 `tracking_test_trajectory` (a 10 s figure-eight of 10 cm x 6 cm with a 30 degree
 orientation sweep, the error of the achieved pose against the commanded pose at each step,
@@ -78,6 +79,7 @@ __all__ = [
     "DLSController",
     "make_kitchen_env",
     "make_kitchen_sim",
+    "kitchen_episodes",
     "measure_tracking_error",
     "tracking_test_trajectory",
     "quat_xyzw_from_mat",
@@ -222,6 +224,8 @@ class DLSController:
         max_step_pos: cap on the position error used per step (m).
         max_step_rot: cap on the rotation error used per step (rad).
         nullspace_gain: pull of the joints towards ``rest_qpos`` in the Jacobian's null space.
+        max_joint_step: cap on the largest joint change per step (rad; the step is scaled down
+            as a whole, keeping its direction).
         rest_qpos: the posture the null space pulls to (default: the kitchen's reset posture).
 
     Example::
@@ -236,10 +240,11 @@ class DLSController:
         self,
         sim: Any,
         *,
-        damping: float = 0.02,
+        damping: float = 0.05,
         max_step_pos: float = 0.06,
         max_step_rot: float = 0.35,
         nullspace_gain: float = 0.1,
+        max_joint_step: float = 0.1,
         rest_qpos: np.ndarray | None = None,
     ) -> None:
         import mujoco
@@ -251,6 +256,7 @@ class DLSController:
         self.max_step_pos = float(max_step_pos)
         self.max_step_rot = float(max_step_rot)
         self.nullspace_gain = float(nullspace_gain)
+        self.max_joint_step = float(max_joint_step)
         robot = sim.robot_env
         self.rest_qpos = np.array(robot.init_qpos[:7] if rest_qpos is None else rest_qpos,
                                   dtype=np.float64)
@@ -306,6 +312,8 @@ class DLSController:
             err = err - jac[:, fix] @ held_dq[fix]
             free &= ~fix
         dq = np.where(free, dq, held_dq)
+        if (peak := np.abs(dq).max()) > self.max_joint_step:  # keep the direction, bound the step
+            dq *= self.max_joint_step / peak
         fingers = np.clip(pose[7:9], 0.0, _FINGER_MAX)
         dq_all = np.concatenate([dq, fingers - self.data.qpos[7:9]])
         # servo target: q + dq, plus what gravity and joint damping will take off it
@@ -656,3 +664,96 @@ def make_kitchen_env(
     env = FrankaKitchenEnv(batch_size, **env_kwargs)
     windows = observation_windows(obs_horizon, {keys.OBSERVATION: keys.OBS_WINDOW}, {})
     return TransformedEnv(env, windows)
+
+
+def kitchen_episodes(
+    source: Any,
+    *,
+    episodes: Sequence[int] | None = None,
+    model: Any = None,
+) -> tuple[list[TensorDict], Any]:
+    """Episodes of a Minari kitchen dataset in `FrankaKitchenEnv`'s layout, for training.
+
+    Reads ``source`` with `rfmp_rl.data.read_minari` (a dataset id under
+    ``$MINARI_DATASETS_PATH`` such as ``D4RL/kitchen/complete-v2``, or a local folder) and
+    returns, per episode of ``T`` steps:
+
+    - ``observation (T, 66)``: the 59-D kitchen observation split and completed as the env does
+      (``robot_qpos``, ``robot_qvel``, ``ee_pos`` and ``ee_quat`` by forward kinematics of the
+      observed joint positions, ``object``);
+    - ``action (T, 9)``: the ee_pose action. A dataset written by recipes/kitchen/experts.py
+      stores it (``actions/ee_pose``); for ``D4RL/kitchen`` (joint-velocity actions in
+      ``[-1, 1]``) it is the forward kinematics of the joint position each action commands,
+      ``q_t + 2 a_t dt`` (what the kitchen env hands to its servos), with the fingers' commanded
+      positions clipped to ``[0, 0.04]``;
+    - ``reward``, ``terminated``, ``truncated`` as read.
+
+    Quaternion signs (``observation[21:25]``, ``action[3:7]``) follow
+    `rfmp_rl.data.quaternions`: ``w >= 0`` at an episode's first step, then continuous.
+
+    Returns:
+        ``(episodes, manifest)``; ``manifest.extra["kitchen_action_source"]`` says which path
+        was taken (``"ee_pose"`` or ``"joint_velocity_fk"``).
+
+    Raises:
+        DataError: the dataset has no ``observation/observation`` of 59 values per step, or
+            no 9-D ``action`` / ``action/ee_pose``.
+
+    Example::
+
+        eps, manifest = kitchen_episodes("data/kitchen/kitchen-expert-v0")
+        eps[0]["observation"].shape  # torch.Size([T, 66])
+    """
+    from rfmp_rl.data.episodes import DataError
+    from rfmp_rl.data.minari import read_minari
+    from rfmp_rl.data.quaternions import (
+        canonicalize_episode_quaternions,
+        parse_quaternion_fields,
+    )
+
+    raw, manifest = read_minari(source, episodes=episodes)
+    if model is None:
+        sim = make_kitchen_sim()
+        model, dt = sim.model, float(sim.robot_env.dt)
+        vel_scale = np.array(sim.robot_env.act_rng, dtype=np.float64)
+        sim.close()
+    else:
+        dt, vel_scale = 0.08, np.full(9, 2.0)
+    fk = KitchenKinematics(model)
+    out, source_kind = [], None
+    for name, ep in zip(manifest.episode_names, raw, strict=True):
+        native = ep.get((keys.OBSERVATION, keys.OBSERVATION), None)
+        if native is None or native.shape[-1] != 59:
+            raise DataError("expected a 59-D kitchen observation (observation/observation)",
+                            file=manifest.source, key="observations/observation", episode=name)
+        native = native.to(torch.float64).numpy()
+        action = ep.get((keys.ACTION, "ee_pose"), None)
+        if action is not None:
+            kind = "ee_pose"
+            action = action.to(torch.float64).numpy()
+        else:
+            joint = ep.get(keys.ACTION, None)
+            if not isinstance(joint, torch.Tensor) or joint.shape[-1] != 9:
+                raise DataError("expected a 9-D action (D4RL/kitchen joint velocities) or "
+                                "actions/ee_pose", file=manifest.source, key="actions",
+                                episode=name)
+            kind = "joint_velocity_fk"
+            target = native[:, :9] + joint.to(torch.float64).numpy() * vel_scale * dt
+            action = np.concatenate([fk.ee_poses(target[:, :7]),
+                                     np.clip(target[:, 7:9], 0.0, _FINGER_MAX)], axis=1)
+        if source_kind not in (None, kind):
+            raise DataError("episodes mix ee_pose and joint-velocity actions",
+                            file=manifest.source, episode=name)
+        source_kind = kind
+        ee = fk.ee_poses(native[:, :7])
+        obs = np.concatenate([native[:, :18], ee, native[:, 18:]], axis=1)
+        td = TensorDict({
+            keys.OBSERVATION: torch.as_tensor(obs, dtype=torch.float32),
+            keys.ACTION: torch.as_tensor(action, dtype=torch.float32),
+            **{k: ep[k] for k in ("reward", "terminated", "truncated") if k in ep.keys()},
+        }, batch_size=[len(obs)])
+        out.append(td)
+    manifest.extra["kitchen_action_source"] = source_kind
+    fields = parse_quaternion_fields("observation[21:25],action[3:7]")
+    canonicalize_episode_quaternions(out, manifest, fields)
+    return out, manifest
