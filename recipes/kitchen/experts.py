@@ -7,9 +7,9 @@ when the demonstration data set is missing.
 site position, quaternion ``xyzw``, two finger positions). Each subtask is a list of segments
 whose targets are computed, when the segment starts, from the TRUE positions of the kitchen's
 MuJoCo sites (``microhandle_site``, ``kettle_site``, ``light_site``, ``slide_site``) and hinge
-bodies; a setpoint moves to each target at a bounded speed (3.5 cm and 0.15 rad per step in free
-space, 1.2 to 2 cm per step in contact; slerp for the orientation) and then waits, up to a few steps, until the gripper is
-within 1.5 cm of it. Orientations: *forward* (the gripper pointing along +y, into the kitchen,
+bodies; a setpoint moves to each target at a bounded speed (3.5 cm and 0.15 rad per step in
+free space, 1.2 to 2.5 cm per step in contact; slerp for the orientation) and then waits, up to
+a few steps, until the gripper is within about 1.5 cm of it. Orientations: *forward* (the gripper pointing along +y, into the kitchen,
 fingers closing along x) for the microwave handle, the light switch and the slide cabinet;
 *down* (fingers closing along y) for the kettle handle. The gripper is symmetric: of a
 target orientation and its half turn about the approach axis, the one closer to the current
@@ -19,7 +19,8 @@ setpoint is used.
    door's arc (about the door hinge; the gripper keeps its orientation, the bar turns between
    the fingers) to -0.7 rad, open, back off;
 2. kettle: above the handle, down onto it, close, lift 8 cm, carry towards the top-left burner
-   (18 cm short of the goal position, within the 0.3 threshold and clear of the range hood), lower, open, lift 7 cm, back off;
+   (18 cm short of the goal position, within the 0.3 threshold and clear of the range hood),
+   lower, open, lift 7 cm, back off;
 3. light switch: to the right of the switch lever, push it 16 cm to the left, back off;
 4. slide cabinet: to the left of the handle, push it 22 cm to the right, back off.
 

@@ -22,8 +22,8 @@ Controller (`DLSController`): the kitchen env turns a velocity ``v`` into the po
 site Jacobian of the true state (``e``: the position error and the rotation vector of
 ``R_target R^T``, capped at 6 cm and 0.35 rad per step; joints that would cross a limit are
 held at it and the rest re-solved), a null-space pull towards the reset posture, the step
-scaled to at most 0.1 rad per joint, and feed-forward terms for gravity (``qfrc_bias / kp``) and joint damping
-(``damping * dq / (dt kp)``) give the servo target. Measured tracking error on
+scaled to at most 0.1 rad per joint, and feed-forward terms for gravity (``qfrc_bias / kp``)
+and joint damping (``damping * dq / (dt kp)``) give the servo target. Measured tracking error on
 `tracking_test_trajectory` (a 10 s figure-eight of 10 cm x 6 cm with a 30 degree
 orientation sweep, the error of the achieved pose against the commanded pose at each step,
 `measure_tracking_error`): see `TRACKING_ERROR`.
@@ -683,9 +683,10 @@ def kitchen_episodes(
       observed joint positions, ``object``);
     - ``action (T, 9)``: the ee_pose action. A dataset written by recipes/kitchen/experts.py
       stores it (``actions/ee_pose``); for ``D4RL/kitchen`` (joint-velocity actions in
-      ``[-1, 1]``) it is the forward kinematics of the joint position each action commands,
-      ``q_t + 2 a_t dt`` (what the kitchen env hands to its servos), with the fingers' commanded
-      positions clipped to ``[0, 0.04]``;
+      ``[-1, 1]``) it is the pose the action led to, as the paper builds it: the forward
+      kinematics of the next observed joint positions ``q_{t+1}`` (site pose, finger
+      positions); the last step, whose next observation is not kept, uses the joint position
+      its action commands, ``q_t + 2 a_t dt``;
     - ``reward``, ``terminated``, ``truncated`` as read.
 
     Quaternion signs (``observation[21:25]``, ``action[3:7]``) follow
@@ -722,25 +723,30 @@ def kitchen_episodes(
     fk = KitchenKinematics(model)
     out, source_kind = [], None
     for name, ep in zip(manifest.episode_names, raw, strict=True):
-        native = ep.get((keys.OBSERVATION, keys.OBSERVATION), None)
+        obs_group = ep.get(keys.OBSERVATION, None)
+        native = obs_group.get(keys.OBSERVATION, None) \
+            if isinstance(obs_group, TensorDictBase) else None
         if native is None or native.shape[-1] != 59:
             raise DataError("expected a 59-D kitchen observation (observation/observation)",
                             file=manifest.source, key="observations/observation", episode=name)
         native = native.to(torch.float64).numpy()
-        action = ep.get((keys.ACTION, "ee_pose"), None)
+        joint = ep.get(keys.ACTION, None)
+        action = joint.get("ee_pose", None) if isinstance(joint, TensorDictBase) else None
         if action is not None:
             kind = "ee_pose"
             action = action.to(torch.float64).numpy()
         else:
-            joint = ep.get(keys.ACTION, None)
             if not isinstance(joint, torch.Tensor) or joint.shape[-1] != 9:
                 raise DataError("expected a 9-D action (D4RL/kitchen joint velocities) or "
                                 "actions/ee_pose", file=manifest.source, key="actions",
                                 episode=name)
             kind = "joint_velocity_fk"
+            # the joint position reached after each action: the next observation's; for the
+            # last step (its next observation is not kept) the position the action commands
             target = native[:, :9] + joint.to(torch.float64).numpy() * vel_scale * dt
-            action = np.concatenate([fk.ee_poses(target[:, :7]),
-                                     np.clip(target[:, 7:9], 0.0, _FINGER_MAX)], axis=1)
+            reached = np.concatenate([native[1:, :9], target[-1:]], axis=0)
+            action = np.concatenate([fk.ee_poses(reached[:, :7]),
+                                     np.clip(reached[:, 7:9], 0.0, _FINGER_MAX)], axis=1)
         if source_kind not in (None, kind):
             raise DataError("episodes mix ee_pose and joint-velocity actions",
                             file=manifest.source, episode=name)
@@ -750,7 +756,7 @@ def kitchen_episodes(
         td = TensorDict({
             keys.OBSERVATION: torch.as_tensor(obs, dtype=torch.float32),
             keys.ACTION: torch.as_tensor(action, dtype=torch.float32),
-            **{k: ep[k] for k in ("reward", "terminated", "truncated") if k in ep.keys()},
+            **{k: ep[k] for k in ("reward", "terminated", "truncated") if k in ep},
         }, batch_size=[len(obs)])
         out.append(td)
     manifest.extra["kitchen_action_source"] = source_kind
