@@ -9,8 +9,9 @@ whose targets are computed, when the segment starts, from the TRUE positions of 
 MuJoCo sites (``microhandle_site``, ``kettle_site``, ``light_site``, ``slide_site``) and hinge
 bodies; a setpoint moves to each target at a bounded speed (3.5 cm and 0.15 rad per step in
 free space, 1.2 to 2.5 cm per step in contact; slerp for the orientation) and then waits, up to
-a few steps, until the gripper is within about 1.5 cm of it. Orientations: *forward* (the gripper pointing along +y, into the kitchen,
-fingers closing along x) for the microwave handle, the light switch and the slide cabinet;
+a few steps, until the gripper is within about 1.5 cm of it. Orientations: *forward* (the
+gripper pointing along +y, into the kitchen, fingers closing along x) for the microwave handle,
+the light switch and the slide cabinet;
 *down* (fingers closing along y) for the kettle handle. The gripper is symmetric: of a
 target orientation and its half turn about the approach axis, the one closer to the current
 setpoint is used.
