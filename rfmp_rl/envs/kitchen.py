@@ -699,7 +699,7 @@ def kitchen_episodes(
       kinematics of the next observed joint positions ``q_{t+1}`` (site pose, finger
       positions); the last step, whose next observation is not kept, uses the joint position
       its action commands, ``q_t + 2 a_t dt``;
-    - ``reward``, ``terminated``, ``truncated`` as read.
+    - ``reward``, ``terminated``, ``truncated`` as read, and ``timestamp`` (12.5 Hz).
 
     Quaternion signs (``observation[21:25]``, ``action[3:7]``) follow
     `rfmp_rl.data.quaternions`: ``w >= 0`` at an episode's first step, then continuous.
@@ -724,7 +724,7 @@ def kitchen_episodes(
         parse_quaternion_fields,
     )
 
-    raw, manifest = read_minari(source, episodes=episodes)
+    raw, manifest = read_minari(source, episodes=episodes, rate_hz=KITCHEN_CONTROL_FREQ)
     if model is None:
         sim = make_kitchen_sim()
         model, dt = sim.model, float(sim.robot_env.dt)
@@ -768,7 +768,8 @@ def kitchen_episodes(
         td = TensorDict({
             keys.OBSERVATION: torch.as_tensor(obs, dtype=torch.float32),
             keys.ACTION: torch.as_tensor(action, dtype=torch.float32),
-            **{k: ep[k] for k in ("reward", "terminated", "truncated") if k in ep},
+            **{k: ep[k] for k in ("reward", "terminated", "truncated", keys.TIMESTAMP)
+               if k in ep},
         }, batch_size=[len(obs)])
         out.append(td)
     manifest.extra["kitchen_action_source"] = source_kind
