@@ -52,8 +52,8 @@ from rfmp_rl.envs.kitchen import (
     quat_xyzw_from_mat,
 )
 
-__all__ = ["KitchenExpert", "run_expert_episode", "evaluate_expert", "generate_demos",
-           "write_minari_kitchen", "FORWARD", "DOWN", "HOME"]
+__all__ = ["KitchenExpert", "ExpertPolicy", "run_expert_episode", "evaluate_expert",
+           "generate_demos", "write_minari_kitchen", "FORWARD", "DOWN", "HOME"]
 
 #: Site frame columns (x, y, z) in the world: gripper pointing +y, fingers closing along x.
 FORWARD = np.array([[0.0, 1.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 0.0]])
@@ -279,6 +279,41 @@ class KitchenExpert:
         return {"name": "KitchenExpert", "speed": self.speed, "rot_speed": self.rot_speed,
                 "noise_std": self.noise_std, "segments": [s.name for s in self.segments]}
 
+
+class ExpertPolicy:
+    """A batched TorchRL policy running one `KitchenExpert` per instance of a
+    `FrankaKitchenEnv` (``ee_pose`` actions).
+
+    Each expert is reset when its instance reports ``step_count == 0`` (a fresh episode).
+
+    Example::
+
+        env = FrankaKitchenEnv([2], seeds=[0, 1])
+        out = env.rollout(280, ExpertPolicy(env), break_when_any_done=False,
+                          break_when_all_done=True)
+        out["next", "success"][:, -1, 0]  # tensor([True, True])
+    """
+
+    def __init__(self, env: Any, **expert_kwargs: Any) -> None:
+        self.env = getattr(env, "base_env", env)
+        if self.env.action_space_name != "ee_pose":
+            raise ValueError("ExpertPolicy acts with ee_pose actions; the env has "
+                             f"action_space={self.env.action_space_name!r}")
+        self.experts = [KitchenExpert(**expert_kwargs) for _ in self.env.instances]
+
+    def __call__(self, tensordict: Any) -> Any:
+        """Write ``action (N, 9)`` into ``tensordict``."""
+        import torch
+
+        counts = tensordict.get("step_count").reshape(-1).tolist()
+        actions = []
+        for i, (expert, inst) in enumerate(zip(self.experts, self.env.instances, strict=True)):
+            if counts[i] == 0:
+                expert.reset(inst)
+            actions.append(expert.act(inst))
+        action = torch.as_tensor(np.stack(actions), dtype=torch.float32,
+                                 device=tensordict.device)
+        return tensordict.set("action", action)
 
 def run_expert_episode(inst: KitchenInstance, expert: KitchenExpert, seed: int,
                        max_steps: int = KITCHEN_MAX_STEPS) -> dict[str, Any]:

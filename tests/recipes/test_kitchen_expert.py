@@ -142,3 +142,33 @@ def test_kitchen_episodes_refuses_other_layouts(tmp_path):
 def test_writer_never_overwrites(dataset, record):
     with pytest.raises(FileExistsError, match="already there"):
         experts.write_minari_kitchen(dataset, [record])
+
+
+def test_expert_through_the_torchrl_env():
+    """The same expert acting through `FrankaKitchenEnv` (TorchRL rollout) succeeds, and the
+    episode ends (terminated) at its success."""
+    env = FrankaKitchenEnv([1], seeds=[SEED + 1])
+    out = env.rollout(280, experts.ExpertPolicy(env), break_when_any_done=False,
+                      break_when_all_done=True)
+    env.close()
+    nxt = out["next"]
+    assert bool(nxt["success"][0, -1, 0]) and bool(nxt["terminated"][0, -1, 0])
+    assert not nxt["success"][0, :-1, 0].any()
+    assert nxt["reward"][0].sum().item() == 4
+    norms = out["action"][0, :, 3:7].norm(dim=-1)
+    torch.testing.assert_close(norms, torch.ones_like(norms), atol=1e-5, rtol=0)
+
+
+def test_generate_demos_writes_the_expert_metadata(tmp_path):
+    info = experts.generate_demos(1, tmp_path / "ds", seed_start=SEED + 2, verbose=False)
+    assert info["successes"] == 1 and info["seeds"] == [SEED + 2]
+    eps, manifest = read_minari(tmp_path / "ds")
+    assert len(eps) == 1
+    import json
+
+    meta = json.loads((tmp_path / "ds" / "data" / "metadata.json").read_text())
+    assert meta["expert"]["seeds"] == [SEED + 2] and meta["control_freq_hz"] == 12.5
+    assert meta["total_episodes"] == 1 and meta["total_steps"] == info["steps"]
+    with pytest.raises(RuntimeError, match="only 0 of 1"):
+        experts.generate_demos(1, tmp_path / "none", max_attempts=0, verbose=False)
+    assert not (tmp_path / "none").exists()
