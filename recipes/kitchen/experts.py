@@ -551,12 +551,16 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--quiet", action="store_true", help="print the summary line only")
     args = parser.parse_args(argv)
     if args.evaluate is not None:
-        return evaluate_expert(args.evaluate, seed_start=args.seed_start,
-                               verbose=not args.quiet, noise_std=args.noise_std)
-    out = args.out or str(Path("data") / "kitchen" / "kitchen-expert-v0")
-    return generate_demos(args.n, out, seed_start=args.seed_start,
-                          max_attempts=args.max_attempts, verbose=not args.quiet,
-                          noise_std=args.noise_std)
+        result = evaluate_expert(args.evaluate, seed_start=args.seed_start,
+                                 verbose=not args.quiet, noise_std=args.noise_std)
+    else:
+        out = args.out or str(Path("data") / "kitchen" / "kitchen-expert-v0")
+        result = generate_demos(args.n, out, seed_start=args.seed_start,
+                                max_attempts=args.max_attempts, verbose=not args.quiet,
+                                noise_std=args.noise_std)
+    if args.quiet:
+        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+    return result
 
 
 if __name__ == "__main__":
