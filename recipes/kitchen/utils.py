@@ -60,7 +60,7 @@ def check_config(cfg: DictConfig) -> None:
     check_algo(cfg)
     if cfg.algo == "cp":
         raise ValueError("the kitchen recipe trains rfmp, srfmp or ddim (the paper's kitchen "
-                         "comparison); algo=cp is not offered here")
+                         "comparison); it does not offer algo=cp")
     check_runtime_config(cfg)
 
 

@@ -38,7 +38,9 @@ against that command; seeds 0-9, no contact), in `TRACKING_ERROR`:
 (means over the seeds of each run's mean and maximum; the worst single step over all runs:
 11 mm / 12.7 mm, 0.52 / 1.2 deg). The fingers track to within 2 mm (4 mm at double speed). At
 the scripted expert's speeds (up to 3.5 cm per step) the site trails its command: one step
-after a command the median gap is 3 cm (recipes/kitchen/README.md).
+after a command the gap is 3 cm median, 21 cm at the 90th percentile (the large
+reorientations between subtasks, where the 0.1 rad joint step cap binds;
+recipes/kitchen/README.md).
 
 Observations (each its own entry, concatenated in this order into ``observation``, 66-D):
 
@@ -52,8 +54,7 @@ Observations (each its own entry, concatenated in this order into ``observation`
 
 The first 9 + 9 and the last 41 values are the kitchen env's 59-D ``observation`` (the
 ``observation/observation`` entry of Minari's ``D4RL/kitchen`` data sets), so data sets
-recorded from the native env map onto this layout (`kitchen_policy_episodes` in
-recipes/kitchen/utils.py).
+recorded from the native env map onto this layout (`kitchen_episodes`).
 
 Protocol: at most `KITCHEN_MAX_STEPS` steps (280, the env's default; ``truncated``). A subtask
 is complete once its joints come within 0.3 of the goal (the kitchen env's rule) and stays
@@ -66,8 +67,8 @@ Initial states: the kitchen env always resets to the same configuration; with
 (default 0.1) and the kettle by ``U(-kettle_noise, kettle_noise)`` m in x and y (default 0.02),
 drawn from the seed.
 
-gymnasium-robotics and MuJoCo are needed (``pip install rfmp_rl[sim]``); they are imported on
-first use.
+gymnasium-robotics and MuJoCo are needed (``pip install rfmp_rl[sim]``), and Minari for the
+recipe's dataset writer; they are imported on first use.
 """
 
 from __future__ import annotations
