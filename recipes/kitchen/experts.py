@@ -434,8 +434,12 @@ def write_minari_kitchen(path: str | Path, records: Sequence[dict[str, Any]], *,
     Raises:
         FileExistsError: ``path`` already holds a dataset (nothing is overwritten).
     """
-    from minari.data_collector.episode_buffer import EpisodeBuffer
-    from minari.dataset.minari_storage import MinariStorage
+    try:
+        from minari.data_collector.episode_buffer import EpisodeBuffer
+        from minari.dataset.minari_storage import MinariStorage
+    except ImportError as exc:
+        raise ImportError("writing the kitchen dataset needs Minari: pip install minari==0.5.4 "
+                          "(in rfmp_rl[dev]); reading it needs only h5py") from exc
 
     path = Path(path)
     data = path / "data"
