@@ -705,6 +705,12 @@ def kitchen_episodes(
     Quaternion signs (``observation[21:25]``, ``action[3:7]``) follow
     `rfmp_rl.data.quaternions`: ``w >= 0`` at an episode's first step, then continuous.
 
+    Args:
+        source: a Minari dataset id or folder (`rfmp_rl.data.read_minari`).
+        episodes: episode ids to read (default all).
+        model: the kitchen's ``mujoco.MjModel`` for the forward kinematics (default: a
+            `make_kitchen_sim` model; its 0.08 s step and 2 rad/s action scale are the env's).
+
     Returns:
         ``(episodes, manifest)``; ``manifest.extra["kitchen_action_source"]`` says which path
         was taken (``"ee_pose"`` or ``"joint_velocity_fk"``).
