@@ -26,6 +26,10 @@ Why not TorchRL's ``MinariExperienceReplay`` (torchrl 0.14.1): with
 writes its memory-mapped copy with ``TensorDict.memmap_like``, which allocates the files without
 copying the values, so every entry reads back as zero (checked on a Minari-written dataset).
 The layout is small, so it is read here directly with h5py (``rfmp_rl[data]``).
+
+Franka Kitchen: `rfmp_rl.envs.kitchen.kitchen_episodes` reads ``D4RL/kitchen`` (and the
+kitchen recipe's expert datasets, written in the same layout) through this reader and turns
+them into `rfmp_rl.envs.kitchen.FrankaKitchenEnv`'s observations and end-effector pose actions.
 """
 
 from __future__ import annotations
