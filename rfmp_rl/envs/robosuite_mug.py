@@ -39,7 +39,13 @@ from __future__ import annotations
 from collections import OrderedDict
 
 import numpy as np
-from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
+
+try:
+    from robosuite.environments.manipulation.manipulation_env import ManipulationEnv
+except ImportError as exc:  # pragma: no cover - robosuite ships with rfmp_rl[sim]
+    raise ImportError(
+        "the mug tasks need robosuite: pip install 'rfmp_rl[sim]' (robosuite==1.5.1)"
+    ) from exc
 from robosuite.models.arenas import TableArena
 from robosuite.models.objects import CompositeObject, CylinderObject
 from robosuite.models.tasks import ManipulationTask
