@@ -36,8 +36,8 @@ Action spaces:
   controller runs with ``input_type="absolute"``, ``input_ref_frame="world"``, which expects the
   grip-site orientation as an axis-angle vector: the env converts (`pose_action_to_osc`).
 
-Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500, PickPlaceMug 400,
-MugFlip 500; ``truncated``),
+Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500, PickPlaceMug 300,
+MugFlip 400; ``truncated``),
 ``success`` is robosuite's ``_check_success()`` and ends the episode (``terminated``); the
 reward is the sparse ``float(success)``.
 
@@ -88,7 +88,7 @@ __all__ = [
 ROBOSUITE_MUG_TASKS = ("PickPlaceMug", "MugFlip")
 ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare", *ROBOSUITE_MUG_TASKS)
 ROBOSUITE_MAX_STEPS = {"Lift": 300, "PickPlaceCan": 500, "NutAssemblySquare": 500,
-                       "PickPlaceMug": 400, "MugFlip": 500}
+                       "PickPlaceMug": 300, "MugFlip": 400}
 ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14,
                          "PickPlaceMug": 17, "MugFlip": 17}
 ROBOSUITE_ACTION_DIMS = {"delta": 7, "abs_pose": 8}
