@@ -72,6 +72,8 @@ def test_mug_task_trains_and_evaluates(runs, task):
     assert row["seeds"] == "100000-100001" and int(row["env_steps"]) > 0
     assert 0.0 <= float(row["success"]) <= 1.0
     assert float(row["quat_norm_err"]) <= 1e-5  # every executed quaternion on S^3
+    md = (run / "eval" / "eval.md").read_text()
+    assert "simulated stand-in" in md and "robomimic's human demonstrations" not in md
 
 
 def test_mug_expert_demonstrations(runs):
