@@ -94,7 +94,7 @@ class MugObject(CompositeObject):
     Example::
 
         mug = MugObject("mug")
-        mug.root_body  # 'mug_main'
+        mug.root_body  # 'mug_root'
     """
 
     def __init__(self, name: str, rgba=(0.92, 0.92, 0.9, 1.0), density: float = 300.0,
