@@ -39,8 +39,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -55,6 +57,7 @@ from rfmp_rl.envs.robosuite import (
     ROBOSUITE_CONTROL_FREQ,
     ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
+    ROBOSUITE_MUG_TASKS,
     RobosuiteEnv,
     _check,
     object_body_id,
@@ -63,6 +66,7 @@ from rfmp_rl.envs.robosuite import (
 
 __all__ = [
     "RobosuiteExpert",
+    "make_expert",
     "ExpertPolicy",
     "generate_demos",
     "evaluate_expert",
@@ -482,6 +486,24 @@ class RobosuiteExpert:
         return np.concatenate([pos, hand, [gripper]])
 
 
+def make_expert(task: str, action_space: str = "delta", **kwargs: Any) -> RobosuiteExpert:
+    """The scripted expert of ``task``: `RobosuiteExpert`, or for PickPlaceMug and MugFlip
+    experts_mug.py's `MugExpert`; ``kwargs`` are their common arguments.
+
+    Example:
+        >>> type(make_expert("Lift")).__name__
+        'RobosuiteExpert'
+    """
+    if task in ROBOSUITE_MUG_TASKS:
+        here = str(Path(__file__).resolve().parent)
+        if here not in sys.path:  # this file loaded by path (tests): its sibling on sys.path
+            sys.path.insert(0, here)
+        from experts_mug import MugExpert  # recipes/robosuite/experts_mug.py
+
+        return MugExpert(task, action_space, **kwargs)
+    return RobosuiteExpert(task, action_space, **kwargs)
+
+
 class ExpertPolicy:
     """A batched TorchRL policy running one `RobosuiteExpert` per instance of a `RobosuiteEnv`.
 
@@ -504,8 +526,8 @@ class ExpertPolicy:
         self.env = getattr(env, "base_env", env)
         seed = expert_kwargs.pop("seed", None)
         self.experts = [
-            RobosuiteExpert(self.env.task, self.env.action_space_name,
-                            seed=None if seed is None else seed + i, **expert_kwargs)
+            make_expert(self.env.task, self.env.action_space_name,
+                        seed=None if seed is None else seed + i, **expert_kwargs)
             for i in range(self.env.batch_size[0])
         ]
 
@@ -576,7 +598,7 @@ def evaluate_expert(
         evaluate_expert("Lift", "delta", 5)["success_rate"]  # 1.0
     """
     env = RobosuiteEnv(task, [1], action_space)
-    expert = RobosuiteExpert(task, action_space, **expert_kwargs)
+    expert = make_expert(task, action_space, **expert_kwargs)
     failed, lengths = [], []
     start = time.perf_counter()
     for seed in range(seed_start, seed_start + n_episodes):
@@ -664,7 +686,7 @@ def generate_demos(
     max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
     cameras = ROBOSUITE_CAMERAS if images else ()
     env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
-    expert = RobosuiteExpert(task, action_space, **expert_kwargs)
+    expert = make_expert(task, action_space, **expert_kwargs)
     episodes: list[TensorDict] = []
     kept, failed = [], []
     seed = seed_start

@@ -35,6 +35,7 @@ from rfmp_rl.envs.robosuite import (
     ROBOSUITE_CONTROL_FREQ,
     ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
+    ROBOSUITE_MUG_TASKS,
     ROBOSUITE_PROPRIO_KEYS,
     ROBOSUITE_TASKS,
     low_dim_key_dims,
@@ -291,6 +292,15 @@ def eval_task(cfg: DictConfig, model=None) -> TaskEval:
         max_steps=ROBOSUITE_MAX_STEPS[cfg.task],
         num_envs=IMAGE_EVAL_ENVS if cfg.obs == "image" else None,
         paper=PAPER.get((cfg.task, cfg.algo), {}) if cfg.obs == "state" else {},
-        notes=["paper: the paper's success rate at that setting (state observations, "
-               "robomimic's human demonstrations)."] if cfg.obs == "state" else [],
+        notes=_notes(cfg),
     )
+
+
+def _notes(cfg: DictConfig) -> list[str]:
+    if cfg.task in ROBOSUITE_MUG_TASKS:
+        return [f"{cfg.task}: a simulated stand-in for the paper's real-robot task (its figure "
+                "of success and jerk over NFE gives no table to set beside ours)."]
+    if cfg.obs == "state":
+        return ["paper: the paper's success rate at that setting (state observations, "
+                "robomimic's human demonstrations)."]
+    return []

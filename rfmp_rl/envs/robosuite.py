@@ -1,4 +1,5 @@
-"""robosuite manipulation (Lift, PickPlaceCan, NutAssemblySquare) as a batched TorchRL env.
+"""robosuite manipulation (Lift, PickPlaceCan, NutAssemblySquare, and the mug tasks PickPlaceMug and
+MugFlip of `rfmp_rl.envs.robosuite_mug`) as a batched TorchRL env.
 
 `RobosuiteEnv` holds ``N`` robosuite environments (a Panda arm driven by the ``OSC_POSE``
 controller at 20 Hz, robomimic's setting) and steps them in a loop as one batch ``[N]``;
@@ -16,7 +17,8 @@ image setting):
   robosuite 1.5's ``object-state``: Lift ``cube_pos (3), cube_quat (4), gripper_to_cube_pos (3)``
   (``cube_pos - eef_pos``); PickPlaceCan / NutAssemblySquare ``obj_to_eef_pos (3),
   obj_to_eef_quat (4), obj_pos (3), obj_quat (4)`` (the object pose in the end-effector frame,
-  then in the world frame). It is computed from the simulator at every step, so it is never
+  then in the world frame); PickPlaceMug / MugFlip the same 14 for the mug, then
+  ``plate_pos (3)``. It is computed from the simulator at every step, so it is never
   stale (robosuite's own ``object-state`` reports zeros for the relative part right after a
   reset and relative values one step old while the object moves).
 
@@ -41,7 +43,8 @@ Action spaces:
   controller runs with ``input_type="absolute"``, ``input_ref_frame="world"``, which expects the
   grip-site orientation as an axis-angle vector: the env converts (`pose_action_to_osc`).
 
-Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500; ``truncated``),
+Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500, PickPlaceMug 300,
+MugFlip 400; ``truncated``),
 ``success`` is robosuite's ``_check_success()`` and ends the episode (``terminated``); the
 reward is the sparse ``float(success)``.
 
@@ -75,6 +78,7 @@ __all__ = [
     "object_state",
     "object_body_id",
     "ROBOSUITE_TASKS",
+    "ROBOSUITE_MUG_TASKS",
     "ROBOSUITE_MAX_STEPS",
     "ROBOSUITE_OBJECT_DIMS",
     "ROBOSUITE_ACTION_DIMS",
@@ -88,9 +92,13 @@ __all__ = [
     "OSC_ROT_SCALE",
 ]
 
-ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare")
-ROBOSUITE_MAX_STEPS = {"Lift": 300, "PickPlaceCan": 500, "NutAssemblySquare": 500}
-ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14}
+#: The simulated stand-ins for the paper's real-robot tasks (`rfmp_rl.envs.robosuite_mug`).
+ROBOSUITE_MUG_TASKS = ("PickPlaceMug", "MugFlip")
+ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare", *ROBOSUITE_MUG_TASKS)
+ROBOSUITE_MAX_STEPS = {"Lift": 300, "PickPlaceCan": 500, "NutAssemblySquare": 500,
+                       "PickPlaceMug": 300, "MugFlip": 400}
+ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14,
+                         "PickPlaceMug": 17, "MugFlip": 17}
 ROBOSUITE_ACTION_DIMS = {"delta": 7, "abs_pose": 8}
 ROBOSUITE_CAMERAS = ("agentview", "robot0_eye_in_hand")
 ROBOSUITE_LOW_DIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
@@ -240,6 +248,8 @@ def make_robosuite_sim(
     for cam in cameras:
         if cam not in ROBOSUITE_CAMERAS:
             raise ValueError(f"robosuite camera must be one of {ROBOSUITE_CAMERAS}, got {cam!r}")
+    if task in ROBOSUITE_MUG_TASKS:
+        import rfmp_rl.envs.robosuite_mug  # noqa: F401 - registers the mug tasks with robosuite
     with _global_numpy_seed(model_seed):
         return suite.make(
             task,
@@ -287,7 +297,7 @@ def pose_action_to_osc(action: np.ndarray, hand_to_site: np.ndarray) -> np.ndarr
 
 
 def object_body_id(sim_env: Any, task: str) -> int:
-    """MuJoCo body id of the task's object (the cube, the can, the square nut).
+    """MuJoCo body id of the task's object (the cube, the can, the square nut, the mug).
 
     Example::
 
@@ -298,6 +308,8 @@ def object_body_id(sim_env: Any, task: str) -> int:
         obj = sim_env.cube
     elif task == "PickPlaceCan":
         obj = sim_env.objects[sim_env.object_id]
+    elif task in ROBOSUITE_MUG_TASKS:
+        obj = sim_env.mug
     else:
         obj = sim_env.nuts[sim_env.nut_id]
     return sim_env.sim.model.body_name2id(obj.root_body)
@@ -327,6 +339,9 @@ def object_state(sim_env: Any, task: str) -> np.ndarray:
     from robosuite.utils.transform_utils import mat2quat, quat2mat
 
     rel_quat = mat2quat(hand.T @ quat2mat(quat))  # xyzw, robosuite's sign convention
+    if task in ROBOSUITE_MUG_TASKS:  # the plate moves between episodes: the policy must see it
+        plate = np.array(data.body_xpos[sim_env.plate_body_id], dtype=np.float64)
+        return np.concatenate([rel_pos, rel_quat, pos, quat, plate])
     return np.concatenate([rel_pos, rel_quat, pos, quat])
 
 
@@ -334,7 +349,8 @@ class RobosuiteEnv(EnvBase):
     """A batch of robosuite manipulation envs (Panda, OSC_POSE, 20 Hz) as one TorchRL env.
 
     Args:
-        task: ``"Lift"``, ``"PickPlaceCan"`` or ``"NutAssemblySquare"``.
+        task: ``"Lift"``, ``"PickPlaceCan"``, ``"NutAssemblySquare"``, ``"PickPlaceMug"`` or
+            ``"MugFlip"``.
         batch_size: ``[N]``, the number of robosuite envs.
         action_space: ``"delta"`` (7-D) or ``"abs_pose"`` (8-D); see the module docstring.
         cameras: camera names among `ROBOSUITE_CAMERAS`, or ``True`` for both; each adds an
