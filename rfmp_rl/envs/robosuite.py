@@ -120,6 +120,8 @@ _OBJECT_QUATERNIONS = {  # offset in the object state -> reference
     "Lift": {3: _IDENTITY},  # cube_quat
     "PickPlaceCan": {3: _HALF_TURN_X, 10: _IDENTITY},  # obj_to_eef_quat, obj_quat
     "NutAssemblySquare": {3: _HALF_TURN_X, 10: _IDENTITY},
+    "PickPlaceMug": {3: _HALF_TURN_X, 10: _IDENTITY},  # then the plate position
+    "MugFlip": {3: _HALF_TURN_X, 10: _IDENTITY},
 }
 
 

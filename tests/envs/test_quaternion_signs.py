@@ -67,3 +67,14 @@ def test_bad_settings_and_missing_entries_are_named():
         t._call(TensorDict({"obs": torch.zeros(1, 10)}, [1]))
     with pytest.raises(ValueError, match=r"has 6 values, the quaternion columns \[5, 9\]"):
         t._call(td(torch.zeros(1, 6)))
+
+
+def test_every_robosuite_task_names_its_observed_quaternions():
+    from rfmp_rl.envs.robosuite import ROBOSUITE_TASKS, low_dim_key_dims, robosuite_obs_quaternions
+
+    for task in ROBOSUITE_TASKS:
+        width = sum(low_dim_key_dims(task).values())
+        spans = [q["columns"] for q in robosuite_obs_quaternions(task)]
+        assert spans[0] == [3, 7], task  # robot0_eef_quat
+        assert len(spans) >= 2, task  # and the object's
+        assert all(b - a == 4 and b <= width for a, b in spans), (task, spans, width)
