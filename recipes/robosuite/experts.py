@@ -51,19 +51,20 @@ from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import (
     OSC_POS_SCALE,
     OSC_ROT_SCALE,
-    ROBOSUITE_CAMERAS,
     ROBOSUITE_CONTROL_FREQ,
-    ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
     RobosuiteEnv,
     _check,
+    num_arms,
     object_body_id,
     osc_pose_controller_config,
+    task_cameras,
 )
 
 __all__ = [
     "RobosuiteExpert",
     "ExpertPolicy",
+    "make_expert",
     "generate_demos",
     "evaluate_expert",
     "down_rotation",
@@ -482,8 +483,28 @@ class RobosuiteExpert:
         return np.concatenate([pos, hand, [gripper]])
 
 
+def make_expert(task: str, action_space: str = "delta", **expert_kwargs: Any):
+    """The scripted expert of ``task``: `RobosuiteExpert`, or for TwoArmTransport
+    ``experts_hard.TransportExpert`` (the same ``reset`` / ``act`` / ``info`` interface).
+
+    Example::
+
+        make_expert("TwoArmTransport").info()["name"]  # 'TransportExpert'
+    """
+    _check(task, action_space)
+    if task == "TwoArmTransport":
+        from experts_hard import TransportExpert  # recipes/robosuite/experts_hard.py
+
+        return TransportExpert(task, action_space, **expert_kwargs)
+    if task not in _PARAMS:
+        raise ValueError(f"no scripted expert for robosuite task {task!r}; experts exist for "
+                         f"{sorted([*_PARAMS, 'TwoArmTransport'])}")
+    return RobosuiteExpert(task, action_space, **expert_kwargs)
+
+
 class ExpertPolicy:
-    """A batched TorchRL policy running one `RobosuiteExpert` per instance of a `RobosuiteEnv`.
+    """A batched TorchRL policy running one expert (`make_expert`) per instance of a
+    `RobosuiteEnv`.
 
     Each expert is reset when its instance reports ``step_count == 0`` (a fresh episode).
 
@@ -504,8 +525,8 @@ class ExpertPolicy:
         self.env = getattr(env, "base_env", env)
         seed = expert_kwargs.pop("seed", None)
         self.experts = [
-            RobosuiteExpert(self.env.task, self.env.action_space_name,
-                            seed=None if seed is None else seed + i, **expert_kwargs)
+            make_expert(self.env.task, self.env.action_space_name,
+                        seed=None if seed is None else seed + i, **expert_kwargs)
             for i in range(self.env.batch_size[0])
         ]
 
@@ -522,13 +543,13 @@ class ExpertPolicy:
         return tensordict.set(keys.ACTION, action)
 
 
-def _run_episode(env: RobosuiteEnv, expert: RobosuiteExpert, seed: int,
+def _run_episode(env: RobosuiteEnv, expert: Any, seed: int,
                  images: bool) -> tuple[TensorDict, bool]:
     """One expert episode from ``seed`` (batch-1 env) -> (robomimic episode, success)."""
     td = env.reset(TensorDict({"seed": torch.tensor([seed])}, [1]))
     sim = env.sims[0]
     expert.reset(sim)
-    obs_keys = list(ROBOSUITE_LOW_DIM_KEYS)
+    obs_keys = list(env.all_low_dim_keys)
     if images:
         obs_keys += [f"{cam}_image" for cam in env.cameras]
     steps: list[dict[str, Any]] = []
@@ -576,7 +597,7 @@ def evaluate_expert(
         evaluate_expert("Lift", "delta", 5)["success_rate"]  # 1.0
     """
     env = RobosuiteEnv(task, [1], action_space)
-    expert = RobosuiteExpert(task, action_space, **expert_kwargs)
+    expert = make_expert(task, action_space, **expert_kwargs)
     failed, lengths = [], []
     start = time.perf_counter()
     for seed in range(seed_start, seed_start + n_episodes):
@@ -662,9 +683,9 @@ def generate_demos(
     if n_success < 1:
         raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
     max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
-    cameras = ROBOSUITE_CAMERAS if images else ()
+    cameras = task_cameras(task) if images else ()
     env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
-    expert = RobosuiteExpert(task, action_space, **expert_kwargs)
+    expert = make_expert(task, action_space, **expert_kwargs)
     episodes: list[TensorDict] = []
     kept, failed = [], []
     seed = seed_start
@@ -693,7 +714,7 @@ def generate_demos(
         "env_name": task,
         "env_type": 1,
         "env_kwargs": {
-            "robots": ["Panda"],
+            "robots": ["Panda"] * num_arms(task),
             "controller_configs": osc_pose_controller_config(action_space),
             "control_freq": ROBOSUITE_CONTROL_FREQ,
             "has_renderer": False,
