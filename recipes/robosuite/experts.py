@@ -39,8 +39,10 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import sys
 import time
 from collections.abc import Sequence
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -493,6 +495,9 @@ def make_expert(task: str, action_space: str = "delta", **expert_kwargs: Any):
     """
     _check(task, action_space)
     if task == "TwoArmTransport":
+        folder = str(Path(__file__).resolve().parent)  # importable however this file was loaded
+        if folder not in sys.path:
+            sys.path.insert(0, folder)
         from experts_hard import TransportExpert  # recipes/robosuite/experts_hard.py
 
         return TransportExpert(task, action_space, **expert_kwargs)
