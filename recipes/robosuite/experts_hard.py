@@ -107,12 +107,13 @@ class ArmDriver(RobosuiteExpert):
 # Scene constants (m): the hand-over line over the gap between the tables, the lid's rest place.
 _TRANSPORT = {
     "hover": 0.09,           # approach height above a grasp point
+    "bin_hover": 0.17,       # the same inside a bin: the fingers stay above its walls (0.96)
     "lid_dz": -0.002,        # grip site relative to the lid handle's centre
     "lid_drop": (-0.17, -0.47, 0.86),  # where the lid handle is let go (beside the start bin)
     "carry_z": 1.10,
-    "grip0_along": 0.05,     # robot 0 grasps the handle this far from its centre toward the head
-    "grip1_along": -0.07,    # robot 1 grasps this far (toward the free end)
-    "handover": (0.0, -0.09, 1.00),  # robot 0's grip point while handing over
+    "grip0_along": 0.07,     # robot 0 grasps the handle this far from its centre toward the head
+    "grip1_along": -0.08,    # robot 1 grasps this far (toward the free end)
+    "handover": (0.0, -0.075, 1.15),  # robot 0's grip point while handing over
     "pay_dz": 0.004,         # grip site above the handle's centre line
     "trash_dz": 0.0,
     "trash_drop_z": 1.00,
@@ -264,7 +265,7 @@ class TransportExpert:
             grip = center + p["grip0_along"] * np.array([axis[0], axis[1], 0.0])
             if ph == "pay_above":
                 arm.yaw = _closest_yaw(self._across(axis), arm._sp_yaw, math.pi)
-                goal = grip + [0.0, 0.0, p["hover"]]
+                goal = grip + [0.0, 0.0, p["bin_hover"]]
                 if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 90:
                     arm.go("pay_down")
                     return None
@@ -307,11 +308,18 @@ class TransportExpert:
                 return goal, yaw, _GRIP_CLOSE, arm.speed if ph == "pay_carry" else 0.5 * arm.speed
             if ph == "pay_release":
                 if arm.phase_steps >= 10:
-                    arm.go("retreat")
+                    arm.go("clear_up")
                     return None
                 return arm._sp_pos.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed
+        if ph == "clear_up":  # straight up first: the open fingers would drag the hammer's head
+            if arm.phase_steps == 0:
+                arm.clear_goal = arm._sp_pos + [0.0, 0.0, 0.08]
+            if arm.at(sim, arm.clear_goal, 0.02) or arm.phase_steps > 25:
+                arm.go("retreat")
+                return None
+            return arm.clear_goal.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed
         if ph == "retreat":
-            goal = np.array([arm._sp_pos[0], -0.40, p["carry_z"]])
+            goal = np.array([arm._sp_pos[0], -0.40, arm._sp_pos[2]])
             return goal, arm._sp_yaw, _GRIP_OPEN, arm.speed
         return arm._sp_pos.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed  # give_up
 
@@ -332,7 +340,7 @@ class TransportExpert:
             pos, rot = self._pose(sim, self._trash)
             if ph == "trash_above":
                 arm.yaw = _closest_yaw(_object_yaw(rot), arm._sp_yaw, math.pi / 2)
-                goal = pos + [0.0, 0.0, p["hover"]]
+                goal = pos + [0.0, 0.0, p["bin_hover"]]
                 if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 80:
                     arm.go("trash_down")
                     return None
@@ -420,6 +428,9 @@ class TransportExpert:
             shift = bin_pos[:2] - center[:2]  # the hammer's centre over the bin's
             z = p["carry_z"] if ph == "place_carry" else p["place_z"]
             goal = np.array([eef[0] + shift[0], eef[1] + shift[1], z])
+            if arm._gap(sim) < p["min_gap"] or abs(eef[2] - center[2]) > 0.08:
+                arm.go("give_up")  # the hammer slipped out of the hand
+                return None
             if ph == "place_carry":
                 if np.linalg.norm(shift) < 0.02 or arm.phase_steps > 120:
                     arm.go("place_lower")
