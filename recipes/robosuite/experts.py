@@ -601,8 +601,8 @@ def evaluate_expert(
 
         evaluate_expert("Lift", "delta", 5)["success_rate"]  # 1.0
     """
-    env = RobosuiteEnv(task, [1], action_space)
     expert = make_expert(task, action_space, **expert_kwargs)
+    env = RobosuiteEnv(task, [1], action_space)
     failed, lengths = [], []
     start = time.perf_counter()
     for seed in range(seed_start, seed_start + n_episodes):
@@ -689,8 +689,8 @@ def generate_demos(
         raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
     max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
     cameras = task_cameras(task) if images else ()
-    env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
     expert = make_expert(task, action_space, **expert_kwargs)
+    env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
     episodes: list[TensorDict] = []
     kept, failed = [], []
     seed = seed_start

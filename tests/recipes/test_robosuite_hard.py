@@ -112,3 +112,13 @@ def test_two_arm_pose_helpers(recipe):
         "shouldercamera0_image", "shouldercamera1_image", "robot0_eye_in_hand_image",
         "robot1_eye_in_hand_image")
     assert utils.cameras("Lift") == utils.CAMERAS
+
+
+def test_toolhang_without_data_names_the_missing_expert(recipe, tmp_path):
+    # no scripted ToolHang expert: a missing file is an error naming the task (a user's own
+    # robomimic ToolHang file trains through data.path, as above)
+    cfg = compose("robosuite", ["task=ToolHang", f"data.path={tmp_path / 'none.hdf5'}",
+                                f"out_dir={tmp_path / 'run'}", *TINY])
+    with pytest.raises(ValueError, match="ToolHang"):
+        recipe["train"].train(cfg)
+    assert not (tmp_path / "none.hdf5").exists()
