@@ -26,12 +26,17 @@ Phases:
 A grasp that closes on nothing, or an object that does not rise with the gripper, sends the
 expert back to the approach (at most ``max_regrasps`` times).
 
+TwoArmTransport's two-arm expert is `experts_hard.TransportExpert` (`make_expert` picks the
+expert of a task); there is no scripted ToolHang expert (a robomimic ToolHang file trains
+through the recipe's ``data.path``).
+
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::
 
     python recipes/robosuite/experts.py --task Lift --n 200 --action-space delta \\
         [--images] --out data/robosuite/lift_delta.hdf5
     python recipes/robosuite/experts.py --task Lift --action-space abs_pose --evaluate 100
+    python recipes/robosuite/experts.py --task TwoArmTransport --evaluate 100
 """
 
 from __future__ import annotations

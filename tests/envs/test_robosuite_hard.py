@@ -73,7 +73,7 @@ def test_transport_specs_keys_and_object_state(transport):
     td = transport.reset()
     assert td["observation"].shape == (2, 59) and transport.action_spec.shape == (2, 14)
     for key in task_low_dim_keys("TwoArmTransport"):
-        assert key in td.keys()
+        assert key in td
     # robot 1 faces robot 0 across the gap between the tables
     assert (td["robot0_eef_pos"][:, 1] < -0.2).all() and (td["robot1_eef_pos"][:, 1] > 0.2).all()
     td = transport.step(td.set("action", torch.zeros(2, 14)))["next"]
@@ -90,7 +90,7 @@ def test_toolhang_keys_and_object_state():
     env = RobosuiteEnv("ToolHang", [1], seeds=[3])
     td = env.reset()
     assert td["observation"].shape == (1, 53) and env.action_spec.shape == (1, 7)
-    assert "robot1_eef_pos" not in td.keys()
+    assert "robot1_eef_pos" not in td
     td = env.step(td.set("action", torch.zeros(1, 7)))["next"]
     sim = env.sims[0]
     robosuite_state = sim._get_observations(force_update=True)["object-state"]
