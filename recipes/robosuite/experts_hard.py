@@ -264,7 +264,9 @@ class TransportExpert:
             center, axis = self._payload_axis(sim)
             grip = center + p["grip0_along"] * np.array([axis[0], axis[1], 0.0])
             if ph == "pay_above":
-                arm.yaw = _closest_yaw(self._across(axis), arm._sp_yaw, math.pi)
+                if arm.phase_steps == 0:
+                    self._plan_wrist(sim, arm, axis)
+                arm.yaw = _closest_yaw(self._across(axis), arm.yaw, math.pi)
                 goal = grip + [0.0, 0.0, p["bin_hover"]]
                 if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 90:
                     arm.go("pay_down")
@@ -295,8 +297,10 @@ class TransportExpert:
                     return None
                 return goal, arm.yaw, _GRIP_CLOSE, 0.8 * arm.speed
             if ph in ("pay_carry", "pay_hold"):
-                # turn the hammer (closed loop on its axis) until its head points to robot 0
-                yaw = arm._sp_yaw + wrap_angle(-math.pi / 2 - math.atan2(axis[1], axis[0]))
+                # turn the hammer (closed loop on its axis) until its head points to robot 0,
+                # the way round planned at the grasp (`_plan_wrist`)
+                turn = wrap_angle(-math.pi / 2 - math.atan2(axis[1], axis[0]))
+                yaw = _closest_yaw(arm._sp_yaw + turn, arm.hold_yaw, 2 * math.pi)
                 hand = np.array(p["handover"])
                 goal = np.array([hand[0], hand[1], p["carry_z"]]) if ph == "pay_carry" else hand
                 if ph == "pay_carry" and (arm.at(sim, goal, 0.03) or arm.phase_steps > 120):
@@ -322,6 +326,24 @@ class TransportExpert:
             goal = np.array([arm._sp_pos[0], -0.40, arm._sp_pos[2]])
             return goal, arm._sp_yaw, _GRIP_OPEN, arm.speed
         return arm._sp_pos.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed  # give_up
+
+    @staticmethod
+    def _plan_wrist(sim: Any, arm: ArmDriver, axis: np.ndarray) -> None:
+        """Choose the payload grasp yaw (across the handle: two choices, pi apart) and the way
+        the wrist then turns the hammer (head toward robot 0) so that the last wrist joint
+        stays mid-range (its limits are +-2.9 rad; it turns opposite to the yaw)."""
+        robot = sim.robots[arm.robot]
+        q7 = float(sim.sim.data.qpos[robot._ref_joint_pos_indexes[-1]])
+        turn = wrap_angle(-math.pi / 2 - math.atan2(axis[1], axis[0]))
+        across = _closest_yaw(TransportExpert._across(axis), arm._sp_yaw, math.pi)
+        best = None
+        for grasp in (across - math.pi, across, across + math.pi):
+            for hold in (grasp + turn - 2 * math.pi, grasp + turn, grasp + turn + 2 * math.pi):
+                q_grasp, q_hold = q7 - (grasp - arm._sp_yaw), q7 - (hold - arm._sp_yaw)
+                cost = max(abs(q_grasp), abs(q_hold)) + 0.2 * abs(grasp - arm._sp_yaw)
+                if best is None or cost < best[0]:
+                    best = (cost, grasp, hold)
+        arm.yaw, arm.hold_yaw = best[1], best[2]
 
     def holding_still(self, sim: Any) -> bool:
         """Robot 0 holds the hammer at the hand-over point, its handle pointing to robot 1."""
