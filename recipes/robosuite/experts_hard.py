@@ -23,6 +23,11 @@ over the bin's), lower, open and retreat.
 
 A grasp that closes on nothing sends that arm back to its approach (at most ``max_regrasps``
 times per arm).
+
+Measured (``python recipes/robosuite/experts.py --task TwoArmTransport --evaluate 100``, delta
+actions): 98 of seeds 0-99 succeed, 438 steps on average (limit 700). The two failures (seeds 33
+and 59) are the same: the trash cube slips out of robot 1's fingers while it is carried sideways
+to the trash bin and lands on the table between the bins.
 """
 
 from __future__ import annotations
