@@ -26,17 +26,23 @@ Phases:
 A grasp that closes on nothing, or an object that does not rise with the gripper, sends the
 expert back to the approach (at most ``max_regrasps`` times).
 
+TwoArmTransport's two-arm expert is `experts_hard.TransportExpert` (`make_expert` picks the
+expert of a task); there is no scripted ToolHang expert (a robomimic ToolHang file trains
+through the recipe's ``data.path``).
+
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::
 
     python recipes/robosuite/experts.py --task Lift --n 200 --action-space delta \\
         [--images] --out data/robosuite/lift_delta.hdf5
     python recipes/robosuite/experts.py --task Lift --action-space abs_pose --evaluate 100
+    python recipes/robosuite/experts.py --task TwoArmTransport --evaluate 100
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import sys
@@ -53,21 +59,22 @@ from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import (
     OSC_POS_SCALE,
     OSC_ROT_SCALE,
-    ROBOSUITE_CAMERAS,
     ROBOSUITE_CONTROL_FREQ,
-    ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
     ROBOSUITE_MUG_TASKS,
     RobosuiteEnv,
     _check,
+    num_arms,
     object_body_id,
     osc_pose_controller_config,
+    task_cameras,
 )
 
 __all__ = [
     "RobosuiteExpert",
     "make_expert",
     "ExpertPolicy",
+    "make_expert",
     "generate_demos",
     "evaluate_expert",
     "down_rotation",
@@ -486,26 +493,41 @@ class RobosuiteExpert:
         return np.concatenate([pos, hand, [gripper]])
 
 
-def make_expert(task: str, action_space: str = "delta", **kwargs: Any) -> RobosuiteExpert:
-    """The scripted expert of ``task``: `RobosuiteExpert`, or for PickPlaceMug and MugFlip
-    experts_mug.py's `MugExpert`; ``kwargs`` are their common arguments.
+def _sibling(name: str):
+    """recipes/robosuite/<name>.py (experts_mug, experts_hard), imported by its path: the recipe's
+    scripts are not a package, and the module imports this one as ``experts``."""
+    if name not in sys.modules:
+        sys.modules.setdefault("experts", sys.modules[__name__])
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[name] = module
+        spec.loader.exec_module(module)
+    return sys.modules[name]
+
+
+def make_expert(task: str, action_space: str = "delta", **expert_kwargs: Any):
+    """The scripted expert of ``task``: `RobosuiteExpert`; for PickPlaceMug and MugFlip
+    experts_mug.py's `MugExpert`; for TwoArmTransport ``experts_hard.TransportExpert`` (the same
+    ``reset`` / ``act`` / ``info`` interface). ``expert_kwargs`` are their common arguments.
 
     Example:
         >>> type(make_expert("Lift")).__name__
         'RobosuiteExpert'
     """
+    _check(task, action_space)
     if task in ROBOSUITE_MUG_TASKS:
-        here = str(Path(__file__).resolve().parent)
-        if here not in sys.path:  # this file loaded by path (tests): its sibling on sys.path
-            sys.path.insert(0, here)
-        from experts_mug import MugExpert  # recipes/robosuite/experts_mug.py
-
-        return MugExpert(task, action_space, **kwargs)
-    return RobosuiteExpert(task, action_space, **kwargs)
+        return _sibling("experts_mug").MugExpert(task, action_space, **expert_kwargs)
+    if task == "TwoArmTransport":
+        return _sibling("experts_hard").TransportExpert(task, action_space, **expert_kwargs)
+    if task not in _PARAMS:
+        raise ValueError(f"no scripted expert for robosuite task {task!r}; experts exist for "
+                         f"{sorted([*_PARAMS, *ROBOSUITE_MUG_TASKS, 'TwoArmTransport'])}")
+    return RobosuiteExpert(task, action_space, **expert_kwargs)
 
 
 class ExpertPolicy:
-    """A batched TorchRL policy running one `RobosuiteExpert` per instance of a `RobosuiteEnv`.
+    """A batched TorchRL policy running one expert (`make_expert`) per instance of a
+    `RobosuiteEnv`.
 
     Each expert is reset when its instance reports ``step_count == 0`` (a fresh episode).
 
@@ -544,13 +566,13 @@ class ExpertPolicy:
         return tensordict.set(keys.ACTION, action)
 
 
-def _run_episode(env: RobosuiteEnv, expert: RobosuiteExpert, seed: int,
+def _run_episode(env: RobosuiteEnv, expert: Any, seed: int,
                  images: bool) -> tuple[TensorDict, bool]:
     """One expert episode from ``seed`` (batch-1 env) -> (robomimic episode, success)."""
     td = env.reset(TensorDict({"seed": torch.tensor([seed])}, [1]))
     sim = env.sims[0]
     expert.reset(sim)
-    obs_keys = list(ROBOSUITE_LOW_DIM_KEYS)
+    obs_keys = list(env.all_low_dim_keys)
     if images:
         obs_keys += [f"{cam}_image" for cam in env.cameras]
     steps: list[dict[str, Any]] = []
@@ -597,8 +619,8 @@ def evaluate_expert(
 
         evaluate_expert("Lift", "delta", 5)["success_rate"]  # 1.0
     """
-    env = RobosuiteEnv(task, [1], action_space)
     expert = make_expert(task, action_space, **expert_kwargs)
+    env = RobosuiteEnv(task, [1], action_space)
     failed, lengths = [], []
     start = time.perf_counter()
     for seed in range(seed_start, seed_start + n_episodes):
@@ -684,9 +706,9 @@ def generate_demos(
     if n_success < 1:
         raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
     max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
-    cameras = ROBOSUITE_CAMERAS if images else ()
-    env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
+    cameras = task_cameras(task) if images else ()
     expert = make_expert(task, action_space, **expert_kwargs)
+    env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
     episodes: list[TensorDict] = []
     kept, failed = [], []
     seed = seed_start
@@ -715,7 +737,7 @@ def generate_demos(
         "env_name": task,
         "env_type": 1,
         "env_kwargs": {
-            "robots": ["Panda"],
+            "robots": ["Panda"] * num_arms(task),
             "controller_configs": osc_pose_controller_config(action_space),
             "control_freq": ROBOSUITE_CONTROL_FREQ,
             "has_renderer": False,

@@ -33,21 +33,24 @@ from rfmp_rl.data.quaternions import (
 )
 from rfmp_rl.envs.robosuite import (
     ROBOSUITE_CONTROL_FREQ,
-    ROBOSUITE_LOW_DIM_KEYS,
     ROBOSUITE_MAX_STEPS,
     ROBOSUITE_MUG_TASKS,
-    ROBOSUITE_PROPRIO_KEYS,
     ROBOSUITE_TASKS,
+    action_dim,
     low_dim_key_dims,
     make_robosuite_env,
+    num_arms,
     robosuite_obs_quaternions,
+    task_cameras,
+    task_low_dim_keys,
+    task_proprio_keys,
 )
 from rfmp_rl.eval import Column, seed_max, seed_mean
 from rfmp_rl.eval.metrics import jerk
 from rfmp_rl.manifolds.quaternion import hemisphere_continuous
 from rfmp_rl.modules import ModelConfig, build_model
 
-CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")
+CAMERAS = ("agentview_image", "robot0_eye_in_hand_image")  # the single-arm tasks' cameras
 CONTROL_DT = 1.0 / ROBOSUITE_CONTROL_FREQ
 CONTROL_RATE_HZ = float(ROBOSUITE_CONTROL_FREQ)  # stored in the checkpoints and ONNX metadata
 #: Task choices that define a run besides ``model`` and ``loss`` (a resume may not change them).
@@ -85,9 +88,19 @@ def pose_action(cfg: DictConfig) -> bool:
 
 
 def low_dim_keys(cfg: DictConfig) -> tuple[str, ...]:
-    """The low-dim keys of ``observation``: all four with state observations, robomimic's
-    proprioception alone (no object state) with images."""
-    return ROBOSUITE_PROPRIO_KEYS if cfg.obs == "image" else ROBOSUITE_LOW_DIM_KEYS
+    """The low-dim keys of ``observation``: all of the task's with state observations,
+    robomimic's proprioception alone (no object state) with images."""
+    return task_proprio_keys(cfg.task) if cfg.obs == "image" else task_low_dim_keys(cfg.task)
+
+
+def cameras(task: str) -> tuple[str, ...]:
+    """The image keys of ``task`` (`CAMERAS`; TwoArmTransport: its four cameras)."""
+    return tuple(f"{cam}_image" for cam in task_cameras(task))
+
+
+def quaternion_slices(cfg: DictConfig) -> list[slice]:
+    """Where the quaternions sit in a pose action: ``3:7`` per arm (8 entries per arm)."""
+    return [slice(8 * k + 3, 8 * k + 7) for k in range(num_arms(cfg.task))]
 
 
 def obs_quaternions(cfg: DictConfig) -> list[dict] | None:
@@ -130,8 +143,8 @@ def ensure_demos(cfg: DictConfig) -> Path:
 
 
 @functools.lru_cache(maxsize=2)
-def _read(path: str, images: bool):
-    keys_ = list(ROBOSUITE_LOW_DIM_KEYS) + (list(CAMERAS) if images else [])
+def _read(path: str, images: bool, task: str):
+    keys_ = list(task_low_dim_keys(task)) + (list(cameras(task)) if images else [])
     # Raw signs here: `policy_episodes` applies the recipe's rule to the observation vector, as
     # the evaluation env and the controller do (the reader's default first-sample hemisphere,
     # w >= 0, is the boundary the Panda's downward hand sits on).
@@ -156,12 +169,13 @@ def policy_episodes(raw: list[TensorDict], cfg: DictConfig) -> list[TensorDict]:
             obs = canonicalize_observation_quaternions(obs, fields)
         action = ep["action"].float()
         if pose_action(cfg):
-            quat = (canonical_quaternion_signs(action[:, 3:7], HAND_REFERENCE) if fields
-                    else hemisphere_continuous(action[:, 3:7]))
-            action = torch.cat([action[:, :3], quat, action[:, 7:]], dim=-1)
+            action = action.clone()
+            for q in quaternion_slices(cfg):  # each arm's, by the hand's rule
+                action[:, q] = (canonical_quaternion_signs(action[:, q], HAND_REFERENCE)
+                                if fields else hemisphere_continuous(action[:, q]))
         sample = TensorDict({keys.OBSERVATION: obs, keys.ACTION: action}, [n])
         if cfg.obs == "image":
-            for cam in CAMERAS:
+            for cam in cameras(cfg.task):
                 sample.set(cam, ep["obs", cam])
         out.append(sample)
     return out
@@ -169,7 +183,7 @@ def policy_episodes(raw: list[TensorDict], cfg: DictConfig) -> list[TensorDict]:
 
 def make_stores(cfg: DictConfig) -> tuple[DemonstrationStore, DemonstrationStore]:
     path = ensure_demos(cfg)
-    raw, source = _read(str(path), cfg.obs == "image")
+    raw, source = _read(str(path), cfg.obs == "image", cfg.task)
     episodes = policy_episodes(raw, cfg)
     return split_stores(episodes, source, cfg.data, f"robosuite/{cfg.task}")
 
@@ -178,7 +192,7 @@ def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig, seed: int):
     return store.replay_buffer(
         cfg.model.horizon,
         observation_keys=[keys.OBSERVATION],
-        camera_keys=list(CAMERAS) if cfg.obs == "image" else [],
+        camera_keys=list(cameras(cfg.task)) if cfg.obs == "image" else [],
         obs_horizon=cfg.model.obs_horizon,
         batch_size=cfg.train.batch_size,
         generator=torch.Generator().manual_seed(seed),
@@ -188,15 +202,17 @@ def make_replay_buffer(store: DemonstrationStore, cfg: DictConfig, seed: int):
 # ----- model -----------------------------------------------------------------------------------
 def make_model_config(cfg: DictConfig) -> ModelConfig:
     """``cfg.model`` with what the task fixes: the action manifold (robomimic's delta R^7, or the
-    pose R^3 x S^3 x R^1, or R^8 for the Euclidean baseline), the observation keys and cameras."""
+    pose R^3 x S^3 x R^1, or R^8 for the Euclidean baseline; per arm, so R^14 or
+    (R^3 x S^3 x R^1)^2 for TwoArmTransport), the observation keys and cameras."""
     obs_keys = low_dim_sizes(cfg)
     obs_dim = sum(d for _, d in obs_keys)
+    dim = action_dim(cfg.task, cfg.action_space)
     if not pose_action(cfg):
-        action_manifold = "R7"
+        action_manifold = f"R{dim}"
     elif cfg.geometry == "riemannian":
-        action_manifold = "R3 x S3 x R1"
+        action_manifold = " x ".join(["R3 x S3 x R1"] * num_arms(cfg.task))
     else:
-        action_manifold = "R8"
+        action_manifold = f"R{dim}"
     return model_config(
         cfg,
         action_manifold=action_manifold,
@@ -204,7 +220,7 @@ def make_model_config(cfg: DictConfig) -> ModelConfig:
         obs_manifold=f"R3 x S3 x R{obs_dim - 7}",  # the eef quaternion is left unnormalised
         obs_quaternions=obs_quaternions(cfg),
         obs_keys=obs_keys,
-        cameras={cam: [3, 84, 84] for cam in CAMERAS} if cfg.obs == "image" else {},
+        cameras={cam: [3, 84, 84] for cam in cameras(cfg.task)} if cfg.obs == "image" else {},
         crop_shape=[76, 76] if cfg.obs == "image" else None,
     )
 
@@ -218,15 +234,19 @@ def make_model(cfg: DictConfig, store: DemonstrationStore):
 
 # ----- evaluation ------------------------------------------------------------------------------
 def _normalise_quaternion(action: torch.Tensor) -> torch.Tensor:
-    q = action[..., 3:7]
-    return torch.cat([action[..., :3], q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12),
-                      action[..., 7:]], dim=-1)
+    """Every arm's quaternion (entries ``8 k + 3 : 8 k + 7``) scaled to unit norm."""
+    parts = []
+    for arm in action.split(8, dim=-1):
+        q = arm[..., 3:7]
+        parts += [arm[..., :3], q / q.norm(dim=-1, keepdim=True).clamp_min(1e-12), arm[..., 7:]]
+    return torch.cat(parts, dim=-1)
 
 
 def make_env_actor(model, cfg: DictConfig, nfe: int, t_end: float):
     """The acting module. A Euclidean (R^8) pose policy keeps its raw output in ``raw_action``
     and sends the action with its quaternion normalised (post-hoc normalisation)."""
-    actor = make_actor(model, nfe, t_end, camera_keys={c: f"{c}_window" for c in CAMERAS})
+    actor = make_actor(model, nfe, t_end,
+                       camera_keys={c: f"{c}_window" for c in cameras(cfg.task)})
     if pose_action(cfg) and cfg.geometry == "euclidean":
         keep = TensorDictModule(lambda a: a.clone(), in_keys=[keys.ACTION], out_keys=["raw_action"])
         norm = TensorDictModule(_normalise_quaternion, in_keys=[keys.ACTION],
@@ -243,7 +263,7 @@ def env_kwargs(cfg: DictConfig, model=None) -> dict:
     return {"task": cfg.task, "obs_horizon": cfg.model.obs_horizon,
             "obs_quaternions": quaternions,
             "action_space": cfg.action_space,
-            "cameras": tuple(c.removesuffix("_image") for c in CAMERAS)
+            "cameras": tuple(c.removesuffix("_image") for c in cameras(cfg.task))
             if cfg.obs == "image" else (),
             "low_dim_keys": low_dim_keys(cfg), "max_steps": cfg.eval.max_steps}
 
@@ -263,7 +283,8 @@ def metrics(cfg: DictConfig):
             executed = raw[i, : int(steps[i])].double()
             jerks.append(float(jerk(executed[:, :3], CONTROL_DT))  # position part
                          if executed.shape[0] >= 4 else float("nan"))
-            errors.append(float((executed[:, 3:7].norm(dim=-1) - 1).abs().max())
+            errors.append(max(float((executed[:, q].norm(dim=-1) - 1).abs().max())
+                              for q in quaternion_slices(cfg))
                           if pose_action(cfg) else float("nan"))
         return {"success": rollout["next", "success"][:, -1, 0].float().tolist(),
                 "jerk": jerks, "quat_norm_err": errors}

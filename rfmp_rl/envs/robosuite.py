@@ -1,9 +1,10 @@
-"""robosuite manipulation (Lift, PickPlaceCan, NutAssemblySquare, and the mug tasks PickPlaceMug and
-MugFlip of `rfmp_rl.envs.robosuite_mug`) as a batched TorchRL env.
+"""robosuite manipulation (Lift, PickPlaceCan, NutAssemblySquare, ToolHang, TwoArmTransport, and
+the mug tasks PickPlaceMug and MugFlip of `rfmp_rl.envs.robosuite_mug`) as a batched TorchRL env.
 
 `RobosuiteEnv` holds ``N`` robosuite environments (a Panda arm driven by the ``OSC_POSE``
-controller at 20 Hz, robomimic's setting) and steps them in a loop as one batch ``[N]``;
-instance ``i`` is reset with seed ``seeds[i]`` (the same seed gives the same initial scene).
+controller at 20 Hz, robomimic's setting; two opposed Pandas for TwoArmTransport) and steps them
+in a loop as one batch ``[N]``; instance ``i`` is reset with seed ``seeds[i]`` (the same seed
+gives the same initial scene).
 
 Observations (robomimic's low-dim keys, each its own entry and concatenated in this order into
 ``observation``; ``low_dim_keys=ROBOSUITE_PROPRIO_KEYS`` leaves ``object`` out of it, robomimic's
@@ -20,7 +21,15 @@ image setting):
   then in the world frame); PickPlaceMug / MugFlip the same 14 for the mug, then
   ``plate_pos (3)``. It is computed from the simulator at every step, so it is never
   stale (robosuite's own ``object-state`` reports zeros for the relative part right after a
-  reset and relative values one step old while the object moves).
+  reset and relative values one step old while the object moves). ToolHang (44) and
+  TwoArmTransport (41) use robosuite's ``object-state`` layout as is (ToolHang: base, frame and
+  tool, each pose in the end-effector frame then in the world frame, then
+  ``frame_is_assembled``, ``tool_on_frame``; TwoArmTransport: payload, trash and lid-handle
+  poses, target and trash bin positions, the two success flags, then gripper-to-object vectors),
+  its sensors evaluated afresh at every step.
+
+TwoArmTransport has two arms: ``robot1_eef_pos``, ``robot1_eef_quat``, ``robot1_gripper_qpos``
+follow robot 0's keys, before ``object`` (robomimic's order; `task_low_dim_keys`).
 
 Quaternion signs: the entries above keep the signs robosuite and MuJoCo give (the hand's body
 quaternion is continuous along a trajectory; ``obj_to_eef_quat`` comes from robosuite's
@@ -30,7 +39,9 @@ with ``obs_quaternions`` (`robosuite_obs_quaternions`) makes them canonical in `
 as the recipe's training data holds them (`rfmp_rl.data.quaternions.canonical_quaternion_signs`).
 
 Cameras (optional): ``agentview_image`` and ``robot0_eye_in_hand_image`` ``(N, 3, H, W) uint8``
-(84 x 84 by default), flipped upright as robomimic stores them.
+(84 x 84 by default), flipped upright as robomimic stores them; TwoArmTransport's are
+``shouldercamera0``, ``shouldercamera1``, ``robot0_eye_in_hand``, ``robot1_eye_in_hand``
+(`task_cameras`).
 
 Action spaces:
 
@@ -43,8 +54,11 @@ Action spaces:
   controller runs with ``input_type="absolute"``, ``input_ref_frame="world"``, which expects the
   grip-site orientation as an axis-angle vector: the env converts (`pose_action_to_osc`).
 
-Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500, PickPlaceMug 300,
-MugFlip 400; ``truncated``),
+With two arms (TwoArmTransport) the action is robot 0's followed by robot 1's (14-D delta,
+16-D abs_pose; `action_dim`), each in its own robot's base frame for ``"delta"``.
+
+Protocol: at most `ROBOSUITE_MAX_STEPS` steps (Lift 300, Can and Square 500, ToolHang and
+TwoArmTransport 700, PickPlaceMug 300, MugFlip 400; ``truncated``),
 ``success`` is robosuite's ``_check_success()`` and ends the episode (``terminated``); the
 reward is the sparse ``float(success)``.
 
@@ -85,8 +99,15 @@ __all__ = [
     "ROBOSUITE_CAMERAS",
     "ROBOSUITE_LOW_DIM_KEYS",
     "ROBOSUITE_PROPRIO_KEYS",
+    "ROBOSUITE_TASK_CAMERAS",
+    "TWO_ARM_TASKS",
     "low_dim_key_dims",
     "robosuite_obs_quaternions",
+    "task_low_dim_keys",
+    "task_proprio_keys",
+    "task_cameras",
+    "num_arms",
+    "action_dim",
     "ROBOSUITE_CONTROL_FREQ",
     "OSC_POS_SCALE",
     "OSC_ROT_SCALE",
@@ -94,23 +115,75 @@ __all__ = [
 
 #: The simulated stand-ins for the paper's real-robot tasks (`rfmp_rl.envs.robosuite_mug`).
 ROBOSUITE_MUG_TASKS = ("PickPlaceMug", "MugFlip")
-ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare", *ROBOSUITE_MUG_TASKS)
+ROBOSUITE_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare", "ToolHang", "TwoArmTransport",
+                   *ROBOSUITE_MUG_TASKS)
 ROBOSUITE_MAX_STEPS = {"Lift": 300, "PickPlaceCan": 500, "NutAssemblySquare": 500,
-                       "PickPlaceMug": 300, "MugFlip": 400}
+                       "ToolHang": 700, "TwoArmTransport": 700, "PickPlaceMug": 300,
+                       "MugFlip": 400}
 ROBOSUITE_OBJECT_DIMS = {"Lift": 10, "PickPlaceCan": 14, "NutAssemblySquare": 14,
-                         "PickPlaceMug": 17, "MugFlip": 17}
+                         "ToolHang": 44, "TwoArmTransport": 41, "PickPlaceMug": 17,
+                         "MugFlip": 17}
+#: Action size per arm (`action_dim` gives a task's whole action).
 ROBOSUITE_ACTION_DIMS = {"delta": 7, "abs_pose": 8}
 ROBOSUITE_CAMERAS = ("agentview", "robot0_eye_in_hand")
+#: Tasks whose cameras are not `ROBOSUITE_CAMERAS` (robomimic's image setting of each).
+ROBOSUITE_TASK_CAMERAS = {
+    "TwoArmTransport": ("shouldercamera0", "shouldercamera1", "robot0_eye_in_hand",
+                        "robot1_eye_in_hand"),
+}
+#: Tasks with two Pandas (``robots=["Panda", "Panda"]``, robosuite's opposed configuration).
+TWO_ARM_TASKS = ("TwoArmTransport",)
 ROBOSUITE_LOW_DIM_KEYS = ("robot0_eef_pos", "robot0_eef_quat", "robot0_gripper_qpos", "object")
 #: robomimic's image observations keep only these low-dim keys (no object state).
 ROBOSUITE_PROPRIO_KEYS = ROBOSUITE_LOW_DIM_KEYS[:3]
 ROBOSUITE_CONTROL_FREQ = 20
+_PROPRIO_DIMS = {"eef_pos": 3, "eef_quat": 4, "gripper_qpos": 2}
+
+
+def num_arms(task: str) -> int:
+    """Number of Panda arms of ``task`` (2 for TwoArmTransport, else 1)."""
+    return 2 if task in TWO_ARM_TASKS else 1
+
+
+def task_proprio_keys(task: str) -> tuple[str, ...]:
+    """The proprioceptive low-dim keys of ``task``: eef position, quaternion and gripper of each
+    arm (`ROBOSUITE_PROPRIO_KEYS` for one arm).
+
+    Example:
+        >>> task_proprio_keys("TwoArmTransport")[3:]
+        ('robot1_eef_pos', 'robot1_eef_quat', 'robot1_gripper_qpos')
+    """
+    return tuple(f"robot{r}_{k}" for r in range(num_arms(task)) for k in _PROPRIO_DIMS)
+
+
+def task_low_dim_keys(task: str) -> tuple[str, ...]:
+    """robomimic's low-dim keys of ``task``: `task_proprio_keys` then ``object``
+    (`ROBOSUITE_LOW_DIM_KEYS` for one arm)."""
+    return (*task_proprio_keys(task), "object")
+
+
+def task_cameras(task: str) -> tuple[str, ...]:
+    """The cameras of ``task`` (`ROBOSUITE_TASK_CAMERAS`, else `ROBOSUITE_CAMERAS`)."""
+    return ROBOSUITE_TASK_CAMERAS.get(task, ROBOSUITE_CAMERAS)
+
+
+def action_dim(task: str, action_space: str) -> int:
+    """Size of ``task``'s action: `ROBOSUITE_ACTION_DIMS` per arm times `num_arms`.
+
+    Example:
+        >>> action_dim("TwoArmTransport", "delta")
+        14
+    """
+    return ROBOSUITE_ACTION_DIMS[action_space] * num_arms(task)
 
 
 def low_dim_key_dims(task: str) -> dict[str, int]:
-    """Size of each low-dim observation key of ``task``, in `ROBOSUITE_LOW_DIM_KEYS` order."""
-    return {"robot0_eef_pos": 3, "robot0_eef_quat": 4, "robot0_gripper_qpos": 2,
-            "object": ROBOSUITE_OBJECT_DIMS[task]}
+    """Size of each low-dim observation key of ``task``, in `task_low_dim_keys` order."""
+    dims = {k: _PROPRIO_DIMS[k.split("_", 1)[1]] for k in task_proprio_keys(task)}
+    dims["object"] = ROBOSUITE_OBJECT_DIMS[task]
+    return dims
+
+
 #: References of the observed quaternions (xyzw; `robosuite_obs_quaternions`): the Panda's hand
 #: points down at reset, a half-turn about world x, and so does an upright object seen from it;
 #: objects in the world frame start upright (a turn about z from the identity).
@@ -126,13 +199,15 @@ _OBJECT_QUATERNIONS = {  # offset in the object state -> reference
 
 
 def robosuite_obs_quaternions(
-    task: str, low_dim_keys: Sequence[str] = ROBOSUITE_LOW_DIM_KEYS
+    task: str, low_dim_keys: Sequence[str] | None = None
 ) -> list[dict[str, list]]:
     """The quaternions of ``observation`` (the ``low_dim_keys`` concatenated) and the reference
     whose hemisphere each stream starts in (`rfmp_rl.data.quaternions.ObservedQuaternion`):
-    ``robot0_eef_quat`` (reference: the hand pointing down, ``x = 1``; robosuite's hand starts
-    within a few degrees of it, so the first frame is far from the boundary, where ``w >= 0``
-    would be on it) and the object state's quaternions.
+    each arm's ``robot<k>_eef_quat`` (reference: the hand pointing down, ``x = 1``; robosuite's
+    hand starts within a few degrees of it, so the first frame is far from the boundary, where
+    ``w >= 0`` would be on it) and the object state's quaternions (``low_dim_keys``: default
+    `task_low_dim_keys`). ToolHang's and TwoArmTransport's object states keep robosuite's signs:
+    their layouts hold several relative quaternions not yet mapped here.
 
     Example:
         >>> [q["columns"] for q in robosuite_obs_quaternions("PickPlaceCan")]
@@ -143,11 +218,11 @@ def robosuite_obs_quaternions(
     if task not in ROBOSUITE_TASKS:
         raise ValueError(f"robosuite task must be one of {ROBOSUITE_TASKS}, got {task!r}")
     dims, out, start = low_dim_key_dims(task), [], 0
-    for key in low_dim_keys:
-        if key == "robot0_eef_quat":
+    for key in task_low_dim_keys(task) if low_dim_keys is None else low_dim_keys:
+        if key.endswith("_eef_quat"):
             out.append({"columns": [start, start + 4], "reference": list(_HALF_TURN_X)})
         elif key == "object":
-            for offset, ref in _OBJECT_QUATERNIONS[task].items():
+            for offset, ref in _OBJECT_QUATERNIONS.get(task, {}).items():
                 out.append({"columns": [start + offset, start + offset + 4],
                             "reference": list(ref)})
         start += dims[key]
@@ -201,7 +276,8 @@ def _global_numpy_seed(seed: int) -> Iterator[None]:
 
 
 def osc_pose_controller_config(action_space: str = "delta") -> dict[str, Any]:
-    """robosuite 1.5 composite controller config: ``BASIC`` with one OSC_POSE arm (``right``).
+    """robosuite 1.5 composite controller config: ``BASIC`` with one OSC_POSE arm (``right``)
+    (two-arm tasks give it to both Pandas).
 
     ``"delta"`` keeps robosuite's defaults (robomimic's): ``input_type="delta"``,
     ``input_ref_frame="base"``, inputs in ``[-1, 1]`` scaled to 0.05 m / 0.5 rad, kp 150,
@@ -233,7 +309,8 @@ def make_robosuite_sim(
     hard_reset: bool = False,
     model_seed: int = 0,
 ) -> Any:
-    """One robosuite env (Panda, OSC_POSE, 20 Hz) as `RobosuiteEnv` uses it.
+    """One robosuite env (Panda, OSC_POSE, 20 Hz; two opposed Pandas for `TWO_ARM_TASKS`) as
+    `RobosuiteEnv` uses it.
 
     The global NumPy RNG is seeded with ``model_seed`` while the model is built (Lift draws its
     cube size from it) and restored afterwards, so every instance holds the same model.
@@ -248,19 +325,20 @@ def make_robosuite_sim(
     suite = _robosuite()
     cameras = list(cameras)
     for cam in cameras:
-        if cam not in ROBOSUITE_CAMERAS:
-            raise ValueError(f"robosuite camera must be one of {ROBOSUITE_CAMERAS}, got {cam!r}")
+        if cam not in task_cameras(task):
+            raise ValueError(f"robosuite {task} camera must be one of {task_cameras(task)}, "
+                             f"got {cam!r}")
     if task in ROBOSUITE_MUG_TASKS:
         import rfmp_rl.envs.robosuite_mug  # noqa: F401 - registers the mug tasks with robosuite
     with _global_numpy_seed(model_seed):
         return suite.make(
             task,
-            robots="Panda",
+            robots="Panda" if num_arms(task) == 1 else ["Panda"] * num_arms(task),
             controller_configs=osc_pose_controller_config(action_space),
             has_renderer=False,
             has_offscreen_renderer=bool(cameras),
             use_camera_obs=bool(cameras),
-            camera_names=cameras or "agentview",
+            camera_names=cameras or task_cameras(task)[0],
             camera_heights=int(image_size),
             camera_widths=int(image_size),
             control_freq=ROBOSUITE_CONTROL_FREQ,
@@ -299,7 +377,8 @@ def pose_action_to_osc(action: np.ndarray, hand_to_site: np.ndarray) -> np.ndarr
 
 
 def object_body_id(sim_env: Any, task: str) -> int:
-    """MuJoCo body id of the task's object (the cube, the can, the square nut, the mug).
+    """MuJoCo body id of the task's object (the cube, the can, the square nut, the tool of
+    ToolHang, the payload of TwoArmTransport, the mug).
 
     Example::
 
@@ -310,6 +389,10 @@ def object_body_id(sim_env: Any, task: str) -> int:
         obj = sim_env.cube
     elif task == "PickPlaceCan":
         obj = sim_env.objects[sim_env.object_id]
+    elif task == "ToolHang":
+        obj = sim_env.tool
+    elif task == "TwoArmTransport":
+        obj = sim_env.transport.payload
     elif task in ROBOSUITE_MUG_TASKS:
         obj = sim_env.mug
     else:
@@ -328,6 +411,8 @@ def object_state(sim_env: Any, task: str) -> np.ndarray:
         sim.reset()
         object_state(sim, "PickPlaceCan").shape  # (14,)
     """
+    if task in ("ToolHang", "TwoArmTransport"):
+        return _fresh_object_state(sim_env)
     data = sim_env.sim.data
     body = object_body_id(sim_env, task)
     pos = np.array(data.body_xpos[body], dtype=np.float64)
@@ -347,20 +432,38 @@ def object_state(sim_env: Any, task: str) -> np.ndarray:
     return np.concatenate([rel_pos, rel_quat, pos, quat])
 
 
+def _fresh_object_state(sim_env: Any) -> np.ndarray:
+    """robosuite's ``object-state`` recomputed from the current sim state.
+
+    robosuite evaluates relative sensors before the absolute ones they read in the same step
+    (so they lag one step, and are zero right after a reset); two passes over the sensors with
+    a fresh cache give every entry at the current state.
+    """
+    observables = [o for o in sim_env._observables.values() if o.is_enabled()]
+    cache: dict[str, Any] = {}
+    for _ in range(2):
+        for obs in observables:
+            cache[obs.name] = np.array(obs._sensor(cache))
+    parts = [np.asarray(cache[o.name], dtype=np.float64).reshape(-1)
+             for o in observables if o.is_active() and o.modality == "object"]
+    return np.concatenate(parts)
+
+
 class RobosuiteEnv(EnvBase):
     """A batch of robosuite manipulation envs (Panda, OSC_POSE, 20 Hz) as one TorchRL env.
 
     Args:
-        task: ``"Lift"``, ``"PickPlaceCan"``, ``"NutAssemblySquare"``, ``"PickPlaceMug"`` or
-            ``"MugFlip"``.
+        task: one of `ROBOSUITE_TASKS`.
         batch_size: ``[N]``, the number of robosuite envs.
-        action_space: ``"delta"`` (7-D) or ``"abs_pose"`` (8-D); see the module docstring.
-        cameras: camera names among `ROBOSUITE_CAMERAS`, or ``True`` for both; each adds an
-            ``<name>_image (N, 3, H, W) uint8`` entry.
+        action_space: ``"delta"`` (7-D per arm) or ``"abs_pose"`` (8-D per arm); see the module
+            docstring.
+        cameras: camera names among `task_cameras` of the task, or ``True`` for all of them;
+            each adds an ``<name>_image (N, 3, H, W) uint8`` entry.
         image_size: camera height and width.
         low_dim_keys: the low-dim keys concatenated into ``observation``, in this order (default
-            all four; `ROBOSUITE_PROPRIO_KEYS` for robomimic's image setting, which leaves the
-            object state out). Every key keeps its own entry either way.
+            all of the task's, `task_low_dim_keys`; `task_proprio_keys` for robomimic's image
+            setting, which leaves the object state out). Every key keeps its own entry either
+            way. Default ``None``: all.
         max_steps: episode limit (default `ROBOSUITE_MAX_STEPS` of the task).
         seeds: ``N`` reset seeds (default ``100000 + i``, disjoint from the demo seeds of
             `generate_demos` of recipes/robosuite/experts.py); a ``seed`` entry ``(N,)`` in the
@@ -370,7 +473,7 @@ class RobosuiteEnv(EnvBase):
             ``False`` the model is built once (Lift's cube size then stays fixed).
         device: where the TensorDicts live.
 
-    Output keys: ``observation``, the four low-dim keys, camera images, ``success``,
+    Output keys: ``observation``, the task's low-dim keys, camera images, ``success``,
     ``step_count``, ``reward``, ``done``/``terminated``/``truncated``. A finished instance is
     frozen: later actions are ignored, it keeps reporting its last observation and ``done``
     (with reward 0), so ``rollout(..., break_when_any_done=False, break_when_all_done=True)``
@@ -395,7 +498,7 @@ class RobosuiteEnv(EnvBase):
         *,
         cameras: Sequence[str] | bool = (),
         image_size: int = 84,
-        low_dim_keys: Sequence[str] = ROBOSUITE_LOW_DIM_KEYS,
+        low_dim_keys: Sequence[str] | None = None,
         max_steps: int | None = None,
         seeds: Sequence[int] | None = None,
         hard_reset: bool = False,
@@ -407,15 +510,18 @@ class RobosuiteEnv(EnvBase):
             raise ValueError(f"RobosuiteEnv: batch_size must be [N], got {list(batch_size)}")
         super().__init__(batch_size=batch_size, device=device)
         if cameras is True:
-            cameras = ROBOSUITE_CAMERAS
+            cameras = task_cameras(task)
         elif cameras is False:
             cameras = ()
         self.task, self.action_space_name = task, action_space
         self.cameras = tuple(cameras)
-        unknown = [k for k in low_dim_keys if k not in ROBOSUITE_LOW_DIM_KEYS]
+        self.all_low_dim_keys = task_low_dim_keys(task)
+        if low_dim_keys is None:
+            low_dim_keys = self.all_low_dim_keys
+        unknown = [k for k in low_dim_keys if k not in self.all_low_dim_keys]
         if unknown or not low_dim_keys:
             raise ValueError(f"RobosuiteEnv: low_dim_keys must be a non-empty subset of "
-                             f"{ROBOSUITE_LOW_DIM_KEYS}, got {list(low_dim_keys)}")
+                             f"{self.all_low_dim_keys} ({task}), got {list(low_dim_keys)}")
         self.low_dim_keys = tuple(low_dim_keys)
         self.image_size = int(image_size)
         self.max_steps = int(ROBOSUITE_MAX_STEPS[task] if max_steps is None else max_steps)
@@ -442,8 +548,8 @@ class RobosuiteEnv(EnvBase):
 
     @property
     def obs_dim(self) -> int:
-        """Size of ``observation``: the sizes of ``low_dim_keys`` (all four: 3 + 4 + 2 + the
-        object state)."""
+        """Size of ``observation``: the sizes of ``low_dim_keys`` (all of them: 3 + 4 + 2 per arm
+        + the object state)."""
         return sum(low_dim_key_dims(self.task)[k] for k in self.low_dim_keys)
 
     # ----- specs -------------------------------------------------------------------------------
@@ -464,12 +570,13 @@ class RobosuiteEnv(EnvBase):
         self.state_spec = Composite(
             seed=Unbounded((*batch,), dtype=torch.int64, device=dev), shape=batch, device=dev
         )
+        arms, dim = num_arms(self.task), action_dim(self.task, self.action_space_name)
         if self.action_space_name == "delta":
-            self.action_spec = Bounded(-1.0, 1.0, (*batch, 7), **f32)
+            self.action_spec = Bounded(-1.0, 1.0, (*batch, dim), **f32)
         else:
-            low = torch.tensor([*_POS_LOW, -1.0, -1.0, -1.0, -1.0, -1.0])
-            high = torch.tensor([*_POS_HIGH, 1.0, 1.0, 1.0, 1.0, 1.0])
-            self.action_spec = Bounded(low.expand(*batch, 8), high.expand(*batch, 8), **f32)
+            low = torch.tensor([*_POS_LOW, -1.0, -1.0, -1.0, -1.0, -1.0] * arms)
+            high = torch.tensor([*_POS_HIGH, 1.0, 1.0, 1.0, 1.0, 1.0] * arms)
+            self.action_spec = Bounded(low.expand(*batch, dim), high.expand(*batch, dim), **f32)
         self.reward_spec = Unbounded((*batch, 1), **f32)
         self.full_done_spec = Composite(
             {
@@ -486,12 +593,8 @@ class RobosuiteEnv(EnvBase):
 
     # ----- observation assembly ---------------------------------------------------------------
     def _observe(self, i: int, sim_obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
-        out = {
-            "robot0_eef_pos": np.asarray(sim_obs["robot0_eef_pos"], dtype=np.float64),
-            "robot0_eef_quat": np.asarray(sim_obs["robot0_eef_quat"], dtype=np.float64),
-            "robot0_gripper_qpos": np.asarray(sim_obs["robot0_gripper_qpos"], dtype=np.float64),
-            "object": object_state(self.sims[i], self.task),
-        }
+        out = {k: np.asarray(sim_obs[k], dtype=np.float64) for k in task_proprio_keys(self.task)}
+        out["object"] = object_state(self.sims[i], self.task)
         out[keys.OBSERVATION] = np.concatenate([out[k] for k in self.low_dim_keys])
         for cam in self.cameras:
             image = np.asarray(sim_obs[f"{cam}_image"])[::-1]  # OpenGL rows are bottom-up
@@ -502,7 +605,7 @@ class RobosuiteEnv(EnvBase):
         n, dev = self.batch_size[0], self.device
         f32 = {"dtype": torch.float32, "device": dev}
         data: dict[str, torch.Tensor] = {}
-        for key in (keys.OBSERVATION, *ROBOSUITE_LOW_DIM_KEYS):
+        for key in (keys.OBSERVATION, *self.all_low_dim_keys):
             data[key] = torch.as_tensor(np.stack([o[key] for o in self._last]), **f32)
         for cam in self.cameras:
             key = f"{cam}_image"
@@ -522,7 +625,8 @@ class RobosuiteEnv(EnvBase):
     def _osc_action(self, action: np.ndarray) -> np.ndarray:
         if self.action_space_name == "delta":
             return action
-        return pose_action_to_osc(action, self.hand_to_site)
+        return np.concatenate([pose_action_to_osc(a, self.hand_to_site)
+                               for a in np.split(action, num_arms(self.task))])
 
     # ----- dynamics ---------------------------------------------------------------------------
     def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
