@@ -1,6 +1,7 @@
 """Train RFMP / SRFMP / Diffusion Policy (DDIM) / Consistency Policy on a robosuite task (Lift,
 PickPlaceCan, NutAssemblySquare, TwoArmTransport, ToolHang, PickPlaceMug, MugFlip) from
-scripted-expert demonstrations (robomimic HDF5), then evaluate the best checkpoint over 50 seeds at NFE {1, 2, 3, 5, 10}.
+scripted-expert demonstrations (robomimic HDF5), then evaluate the best checkpoint over 50
+seeds at NFE {1, 2, 3, 5, 10}.
 
     python recipes/robosuite/train.py task=Lift algo=srfmp train.max_minutes=60
     python recipes/robosuite/train.py task=PickPlaceCan action_space=abs_pose   # R3 x S3 x R1
