@@ -11,6 +11,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -327,6 +328,65 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
     return trainer.fit()
+
+
+@dataclass
+class RecipeTraining:
+    """What a recipe's ``train.py`` plugs into `train_run`: its name, how its run folder and
+    log lines name the run, its data and model builders and its evaluation.
+
+    ``what(cfg)`` names the run in the logs (``"srfmp on Lift (state, delta)"``),
+    ``heading(cfg, what, result, step)`` heads the final evaluation's table, ``prepare(cfg)``
+    runs on rank 0 before the data is read (e.g. writes the expert's demonstrations), and
+    ``fit_options(cfg)`` gives `fit`'s keyword arguments (``camera_keys``, ``rollout_score``,
+    ``control_rate_hz``)."""
+
+    recipe: str
+    task_keys: Sequence[str]
+    check: Callable[[DictConfig], None]
+    run_name: Callable[[DictConfig], str]
+    what: Callable[[DictConfig], str]
+    make_stores: Callable
+    make_replay_buffer: Callable
+    make_model: Callable
+    eval_task: Callable
+    fit_options: Callable[[DictConfig], dict] = lambda cfg: {}
+    prepare: Callable[[DictConfig], None] | None = None
+    heading: Callable | None = None
+
+
+def train_run(cfg: DictConfig, parts: RecipeTraining, overrides=None):
+    """A recipe's training run: start (or resume) the run folder, build the data and the model,
+    train with `fit`, then, with ``eval.final_eval``, evaluate ``best.pt`` and write
+    ``<run>/eval``. Returns ``(run folder, FitResult)``."""
+    parts.check(cfg)
+    name = f"{parts.run_name(cfg)}_{datetime.now():%Y%m%d_%H%M%S}"
+    fixed = fixed_settings(cfg, parts.task_keys)
+    cfg, runtime, run_dir, last = start_run(cfg, parts.recipe, fixed, overrides, name)
+    parts.check(cfg)
+    if parts.prepare is not None:
+        if runtime.is_main:
+            parts.prepare(cfg)  # once, on rank 0
+        runtime.barrier()
+    what = parts.what(cfg)
+    model, rb, val_rb = build_training(cfg, runtime, parts.make_stores, parts.make_replay_buffer,
+                                       parts.make_model, what)
+    result = fit(model, rb, val_rb, cfg, run_dir, runtime, parts.recipe, last,
+                 **parts.fit_options(cfg))
+    if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
+        best, meta = eval_model(run_dir / "best.pt", cfg, runtime)
+        task = parts.eval_task(cfg)
+        rows = run_sweep(best, cfg, task, progress=show(task))
+        step = meta["extra"].get("step")
+        title = (parts.heading(cfg, what, result, step) if parts.heading is not None else
+                 f"{what}: {cfg.model.unet_preset}, best of {result.steps} steps at step "
+                 f"{step}, {result.minutes:.0f} min")
+        command = f"python recipes/{parts.recipe}/eval.py checkpoint={run_dir / 'best.pt'}"
+        print(report(rows, run_dir / "eval", cfg, task, title, command).read_text())
+    if runtime.is_main:
+        print(f"run folder: {run_dir}")
+    runtime.shutdown()
+    return run_dir, result
 
 
 def eval_model(path: Path, cfg: DictConfig, runtime=None):

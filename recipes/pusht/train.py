@@ -14,7 +14,6 @@ eval.md, eval.png) from `eval.py`'s sweep.
 from __future__ import annotations
 
 import sys
-from datetime import datetime
 from pathlib import Path
 
 import hydra
@@ -42,33 +41,25 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     return run(cfg, overrides)[0]
 
 
+def _fit_options(cfg: DictConfig) -> dict:
+    return {"camera_keys": {keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
+            "rollout_score": selection_score(cfg), "control_rate_hz": CONTROL_RATE_HZ}
+
+
+TRAINING = common.RecipeTraining(
+    recipe="pusht", task_keys=TASK_KEYS, check=check_config,
+    run_name=lambda cfg: f"{cfg.algo}_{cfg.obs}_{cfg.space}",
+    what=lambda cfg: f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})",
+    make_stores=make_stores, make_replay_buffer=make_replay_buffer, make_model=make_model,
+    eval_task=eval_task, fit_options=_fit_options,
+    heading=lambda cfg, what, result, step: (
+        f"Push-T {cfg.obs} {cfg.space}: {cfg.algo} ({cfg.model.unet_preset}, best of "
+        f"{result.steps} steps at step {step}, {result.minutes:.0f} min)"))
+
+
 def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
     """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
-    check_config(cfg)
-    name = f"{cfg.algo}_{cfg.obs}_{cfg.space}_{datetime.now():%Y%m%d_%H%M%S}"
-    fixed = common.fixed_settings(cfg, TASK_KEYS)
-    cfg, runtime, run_dir, last = common.start_run(cfg, "pusht", fixed, overrides, name)
-    check_config(cfg)
-    what = f"{cfg.algo} on Push-T ({cfg.obs}, {cfg.space})"
-    model, rb, val_rb = common.build_training(cfg, runtime, make_stores, make_replay_buffer,
-                                              make_model, what)
-    result = common.fit(model, rb, val_rb, cfg, run_dir, runtime, "pusht", last,
-                        camera_keys={keys.PIXELS: keys.PIXELS} if cfg.obs == "image" else None,
-                        rollout_score=selection_score(cfg), control_rate_hz=CONTROL_RATE_HZ)
-    if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
-        best, meta = common.eval_model(run_dir / "best.pt", cfg, runtime)
-        task = eval_task(cfg)
-        rows = common.run_sweep(best, cfg, task, progress=common.show(task))
-        title = (f"Push-T {cfg.obs} {cfg.space}: {cfg.algo} ({cfg.model.unet_preset}, best of "
-                 f"{result.steps} steps at step {meta['extra'].get('step')}, "
-                 f"{result.minutes:.0f} min)")
-        command = f"python recipes/pusht/eval.py checkpoint={run_dir / 'best.pt'}"
-        print(common.report(rows, run_dir / "eval", cfg, task, title, command).read_text())
-    if runtime.is_main:
-        print(f"run folder: {run_dir}")
-    runtime.shutdown()
-    return run_dir, result
-
+    return common.train_run(cfg, TRAINING, overrides)
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:

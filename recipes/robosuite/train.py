@@ -16,7 +16,6 @@ Writes ``runs/robosuite/<task>_<algo>_<obs>_<action_space>_<time>/``: ``best.pt`
 from __future__ import annotations
 
 import sys
-from datetime import datetime
 from pathlib import Path
 
 import hydra
@@ -43,34 +42,18 @@ def train(cfg: DictConfig, overrides=None) -> Path:
     return run(cfg, overrides)[0]
 
 
+TRAINING = common.RecipeTraining(
+    recipe="robosuite", task_keys=TASK_KEYS, check=check_config,
+    run_name=lambda cfg: f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}",
+    what=lambda cfg: f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space})",
+    make_stores=make_stores, make_replay_buffer=make_replay_buffer, make_model=make_model,
+    eval_task=eval_task, fit_options=lambda cfg: {"control_rate_hz": CONTROL_RATE_HZ},
+    prepare=ensure_demos)  # the scripted expert writes the file once, on rank 0
+
+
 def run(cfg: DictConfig, overrides=None) -> tuple[Path, FitResult]:
     """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
-    check_config(cfg)
-    name = f"{cfg.task}_{cfg.algo}_{cfg.obs}_{cfg.action_space}_{datetime.now():%Y%m%d_%H%M%S}"
-    fixed = common.fixed_settings(cfg, TASK_KEYS)
-    cfg, runtime, run_dir, last = common.start_run(cfg, "robosuite", fixed, overrides, name)
-    check_config(cfg)
-    if runtime.is_main:
-        ensure_demos(cfg)  # the scripted expert writes the file once, on rank 0
-    runtime.barrier()
-    what = f"{cfg.algo} on {cfg.task} ({cfg.obs}, {cfg.action_space})"
-    model, rb, val_rb = common.build_training(cfg, runtime, make_stores, make_replay_buffer,
-                                              make_model, what)
-    result = common.fit(model, rb, val_rb, cfg, run_dir, runtime, "robosuite", last,
-                        control_rate_hz=CONTROL_RATE_HZ)
-    if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
-        best, meta = common.eval_model(run_dir / "best.pt", cfg, runtime)
-        task = eval_task(cfg)
-        rows = common.run_sweep(best, cfg, task, progress=common.show(task))
-        title = (f"{what}: {cfg.model.unet_preset}, best of {result.steps} steps at step "
-                 f"{meta['extra'].get('step')}, {result.minutes:.0f} min")
-        command = f"python recipes/robosuite/eval.py checkpoint={run_dir / 'best.pt'}"
-        print(common.report(rows, run_dir / "eval", cfg, task, title, command).read_text())
-    if runtime.is_main:
-        print(f"run folder: {run_dir}")
-    runtime.shutdown()
-    return run_dir, result
-
+    return common.train_run(cfg, TRAINING, overrides)
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
 def main(cfg: DictConfig) -> None:
