@@ -70,11 +70,20 @@ def test_bad_settings_and_missing_entries_are_named():
 
 
 def test_every_robosuite_task_names_its_observed_quaternions():
-    from rfmp_rl.envs.robosuite import ROBOSUITE_TASKS, low_dim_key_dims, robosuite_obs_quaternions
+    from rfmp_rl.envs.robosuite import (
+        ROBOSUITE_TASKS,
+        low_dim_key_dims,
+        num_arms,
+        robosuite_obs_quaternions,
+    )
 
     for task in ROBOSUITE_TASKS:
         width = sum(low_dim_key_dims(task).values())
         spans = [q["columns"] for q in robosuite_obs_quaternions(task)]
         assert spans[0] == [3, 7], task  # robot0_eef_quat
-        assert len(spans) >= 2, task  # and the object's
         assert all(b - a == 4 and b <= width for a, b in spans), (task, spans, width)
+        # every arm's hand, and the object's quaternions where the layout is mapped
+        mapped = task not in ("ToolHang", "TwoArmTransport")
+        assert len(spans) == num_arms(task) + (2 if mapped and task != "Lift" else int(mapped))
+    assert [q["columns"] for q in robosuite_obs_quaternions("TwoArmTransport")] == [[3, 7],
+                                                                                   [12, 16]]
