@@ -497,11 +497,18 @@ def _sibling(name: str):
     """recipes/robosuite/<name>.py (experts_mug, experts_hard), imported by its path: the recipe's
     scripts are not a package, and the module imports this one as ``experts``."""
     if name not in sys.modules:
-        sys.modules.setdefault("experts", sys.modules[__name__])
         spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
         module = importlib.util.module_from_spec(spec)
+        previous = sys.modules.get("experts")  # another recipe's `experts` may be loaded
+        sys.modules["experts"] = sys.modules[__name__]
+        try:
+            spec.loader.exec_module(module)
+        finally:
+            if previous is None:
+                del sys.modules["experts"]
+            else:
+                sys.modules["experts"] = previous
         sys.modules[name] = module
-        spec.loader.exec_module(module)
     return sys.modules[name]
 
 
