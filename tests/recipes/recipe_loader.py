@@ -38,11 +38,16 @@ PUSHT_TINY = [
 ]
 
 
+#: the recipes' own modules, imported by bare name by their scripts (one per recipe folder)
+LOCAL_MODULES = ("utils", "experts")
+
+
 def load_recipe(name: str):
-    """Import recipes/<name>/{utils,train,eval}.py (the scripts import their local `utils`);
-    yields ``{"utils": ..., "train": ..., "eval": ...}`` and restores ``sys.path`` after."""
+    """Import recipes/<name>/{utils,train,eval}.py (the scripts import their local `utils`, and
+    `experts` when they write demonstrations); yields ``{"utils": ..., "train": ..., "eval":
+    ...}`` and restores ``sys.path`` and those two modules after (each recipe has its own)."""
     folder = ROOT / "recipes" / name
-    saved = sys.modules.pop("utils", None)
+    saved = {local: sys.modules.pop(local, None) for local in LOCAL_MODULES}
     sys.path.insert(0, str(folder))
     try:
         mods = {}
@@ -58,9 +63,10 @@ def load_recipe(name: str):
         yield mods
     finally:
         sys.path.remove(str(folder))
-        sys.modules.pop("utils", None)
-        if saved is not None:
-            sys.modules["utils"] = saved
+        for local, module in saved.items():
+            sys.modules.pop(local, None)
+            if module is not None:
+                sys.modules[local] = module
 
 
 def compose(name: str, overrides: list[str]):
@@ -77,5 +83,6 @@ def load_script(recipe: str, script: str):
     spec = importlib.util.spec_from_file_location(
         f"{recipe}_{script}", ROOT / "recipes" / recipe / f"{script}.py")
     module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module  # under its own name (dataclasses look it up)
     spec.loader.exec_module(module)
     return module

@@ -4,21 +4,18 @@ Minari reads it, `rfmp_rl.data.read_minari` reads it, and `kitchen_episodes` tur
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import torch
+from recipe_loader import load_script
 
 pytest.importorskip("gymnasium_robotics")
 pytest.importorskip("minari")
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "recipes" / "kitchen"))
-import experts  # noqa: E402
-
-sys.path.remove(str(ROOT / "recipes" / "kitchen"))
+experts = load_script("kitchen", "experts")  # recipes/kitchen/experts.py, not robosuite's
 
 from rfmp_rl.data import read_minari  # noqa: E402
 from rfmp_rl.data.episodes import DataError  # noqa: E402
