@@ -37,6 +37,8 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
+import shutil
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -446,29 +448,41 @@ def write_minari_kitchen(path: str | Path, records: Sequence[dict[str, Any]], *,
     if (data / "metadata.json").exists():
         raise FileExistsError(f"{data / 'metadata.json'}: a Minari dataset is already there; "
                               "remove it or choose another --out")
+    if data.exists() and any(data.iterdir()):
+        raise FileExistsError(f"{data}: the folder is not empty; remove it or choose another "
+                              "--out")
     if not records:
         raise ValueError("write_minari_kitchen: no episodes to write")
-    data.mkdir(parents=True, exist_ok=True)
     inst = KitchenInstance()
     obs_space, act_space = _spaces(inst)
     inst.close()
-    storage = MinariStorage.new(data, observation_space=obs_space, action_space=act_space,
-                                jpeg_encoding=False)
-    storage.update_episodes([
-        EpisodeBuffer(id=i, seed=int(rec["seed"]), observations=rec["observations"],
-                      actions=rec["actions"], rewards=rec["rewards"],
-                      terminations=rec["terminations"], truncations=rec["truncations"],
-                      infos={})
-        for i, rec in enumerate(records)
-    ])
-    import minari
+    # Minari resolves its files against the storage folder: it gets an absolute one. The data
+    # set is written into a private sibling folder and moved into place once complete, so an
+    # interrupted run leaves no half-written dataset at ``path``.
+    path.mkdir(parents=True, exist_ok=True)
+    partial = path.resolve() / f".data.partial-{os.getpid()}"
+    try:
+        storage = MinariStorage.new(partial, observation_space=obs_space,
+                                    action_space=act_space, jpeg_encoding=False)
+        storage.update_episodes([
+            EpisodeBuffer(id=i, seed=int(rec["seed"]), observations=rec["observations"],
+                          actions=rec["actions"], rewards=rec["rewards"],
+                          terminations=rec["terminations"], truncations=rec["truncations"],
+                          infos={})
+            for i, rec in enumerate(records)
+        ])
+        import minari
 
-    storage.update_metadata({
-        "dataset_id": dataset_id,
-        "minari_version": minari.__version__,
-        "algorithm_name": "KitchenExpert (recipes/kitchen/experts.py)",
-        **(extra_metadata or {}),
-    })
+        storage.update_metadata({
+            "dataset_id": dataset_id,
+            "minari_version": minari.__version__,
+            "algorithm_name": "KitchenExpert (recipes/kitchen/experts.py)",
+            **(extra_metadata or {}),
+        })
+        os.replace(partial, data)  # onto a missing or empty folder: atomic
+    finally:
+        if partial.exists():
+            shutil.rmtree(partial)
     return path
 
 

@@ -141,6 +141,26 @@ def test_writer_never_overwrites(dataset, record):
         experts.write_minari_kitchen(dataset, [record])
 
 
+def test_writer_takes_a_relative_path(record, tmp_path, monkeypatch):
+    """The CLI's default ``--out`` is relative: Minari gets an absolute folder, the dataset
+    appears complete at the path asked for and no partial folder is left beside it."""
+    import minari
+
+    monkeypatch.chdir(tmp_path)
+    experts.write_minari_kitchen(Path("data/kitchen/ds"), [record])
+    data = tmp_path / "data" / "kitchen" / "ds" / "data"
+    assert sorted(p.name for p in data.parent.iterdir()) == ["data"]
+    assert minari.MinariDataset(data).total_episodes == 1
+
+
+def test_writer_refuses_a_folder_with_files(record, tmp_path):
+    (tmp_path / "ds" / "data").mkdir(parents=True)
+    (tmp_path / "ds" / "data" / "notes.txt").write_text("a user's file")
+    with pytest.raises(FileExistsError, match="not empty"):
+        experts.write_minari_kitchen(tmp_path / "ds", [record])
+    assert (tmp_path / "ds" / "data" / "notes.txt").read_text() == "a user's file"
+
+
 def test_expert_through_the_torchrl_env():
     """The same expert acting through `FrankaKitchenEnv` (TorchRL rollout) succeeds, and the
     episode ends (terminated) at its success."""
