@@ -177,6 +177,9 @@ class RobosuiteExpert:
         td["success"].item()  # True
     """
 
+    #: the geometry of each task the class plans for (``params`` is a copy of the task's entry)
+    _TASK_PARAMS: dict[str, dict[str, Any]] = _PARAMS
+
     def __init__(
         self,
         task: str,
@@ -194,7 +197,7 @@ class RobosuiteExpert:
         self.noise_std, self.rot_noise_std = float(noise_std), float(rot_noise_std)
         self.speed, self.turn_speed = float(speed), float(turn_speed)
         self.max_regrasps = int(max_regrasps)
-        self.params = dict(_PARAMS[task])
+        self.params = dict(self._TASK_PARAMS[task])
         self.rng = np.random.default_rng(seed)
         self.phase = "approach"
         self._sp_pos: np.ndarray | None = None
@@ -231,14 +234,8 @@ class RobosuiteExpert:
         self._nut_offset = 0.0
         self._nut_yaw = 0.0
         self._lift_ref = 0.0
-        robot = sim_env.robots[0]
+        self._read_arm(sim_env, 0)
         data = sim_env.sim.data
-        self._site_id = robot.eef_site_id["right"]
-        self._hand_name = robot.robot_model.eef_name["right"]
-        hand = np.array(data.get_body_xmat(self._hand_name))
-        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
-        self._hand_to_site = hand.T @ site
-        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
         self._body = object_body_id(sim_env, self.task)
         if self.task == "NutAssemblySquare":
             nut = sim_env.nuts[sim_env.nut_id]
@@ -250,6 +247,18 @@ class RobosuiteExpert:
             target = np.array(sim_env.target_bin_placements[sim_env.object_id])[:2]
             self._target = target + np.array(self.params["place_offset"])
             self._rest_z = float(data.body_xpos[self._body][2])  # the can stands on a bin floor
+
+    def _read_arm(self, sim_env: Any, robot_index: int) -> None:
+        """Read the frames of robot ``robot_index``'s arm: its grip site, its hand body, the
+        hand-to-site rotation and the orientation of its controller's base frame."""
+        robot = sim_env.robots[robot_index]
+        data = sim_env.sim.data
+        self._site_id = robot.eef_site_id["right"]
+        self._hand_name = robot.robot_model.eef_name["right"]
+        hand = np.array(data.get_body_xmat(self._hand_name))
+        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
+        self._hand_to_site = hand.T @ site
+        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
 
     def _eef(self, sim_env: Any) -> tuple[np.ndarray, np.ndarray]:
         data = sim_env.sim.data
@@ -461,14 +470,22 @@ class RobosuiteExpert:
         if self._sp_pos is None:
             self._sp_pos, self._sp_rot = eef.copy(), Rotation.from_matrix(eef_rot)
             self._sp_yaw = yaw_of(eef_rot)
-        goal_pos, goal_yaw, gripper, speed = self._goal(sim_env)
+        goal_pos, goal_orientation, gripper, speed = self._goal(sim_env)
         self.phase_steps += 1
         # Move the setpoint toward the goal, at most `speed` m and `turn_speed` rad per step.
         step = goal_pos - self._sp_pos
         dist = float(np.linalg.norm(step))
         self._sp_pos = goal_pos.copy() if dist <= speed else self._sp_pos + step * (speed / dist)
-        # The yaw moves linearly (never the other way round through +-pi, where the wrist
-        # joint ends); the orientation follows it, removing any initial tilt on the way.
+        self._turn_setpoint(goal_orientation)
+        return self._command(sim_env, eef, eef_rot, gripper)
+
+    def _turn_setpoint(self, goal_yaw: float) -> None:
+        """Turn the setpoint orientation toward the downward grip of yaw ``goal_yaw``.
+
+        The yaw moves linearly (never the other way round through +-pi, where the wrist joint
+        ends); the orientation follows it, removing any initial tilt on the way.
+        """
+        Rotation = _rot()
         self._sp_yaw += float(np.clip(goal_yaw - self._sp_yaw, -self.turn_speed, self.turn_speed))
         target = Rotation.from_matrix(down_rotation(self._sp_yaw))
         turn = (target * self._sp_rot.inv()).as_rotvec()
@@ -476,6 +493,11 @@ class RobosuiteExpert:
         if angle > 2 * self.turn_speed:
             turn *= 2 * self.turn_speed / angle
         self._sp_rot = Rotation.from_rotvec(turn) * self._sp_rot
+
+    def _command(self, sim_env: Any, eef: np.ndarray, eef_rot: np.ndarray,
+                 gripper: float) -> np.ndarray:
+        """The setpoint (plus the expert's noise) as a delta or abs_pose action."""
+        Rotation = _rot()
         pos, rot = self._sp_pos.copy(), self._sp_rot
         if self.noise_std > 0:
             pos = pos + self.rng.normal(0.0, self.noise_std, 3)

@@ -79,14 +79,7 @@ class ArmDriver(RobosuiteExpert):
         self._sp_pos = self._sp_rot = None
         self._sp_yaw = 0.0
         self.command = None
-        robot = sim_env.robots[self.robot]
-        data = sim_env.sim.data
-        self._site_id = robot.eef_site_id["right"]
-        self._hand_name = robot.robot_model.eef_name["right"]
-        hand = np.array(data.get_body_xmat(self._hand_name))
-        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
-        self._hand_to_site = hand.T @ site
-        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
+        self._read_arm(sim_env, self.robot)
 
     def start(self, sim_env: Any) -> None:
         """Place the setpoint at the current grip-site pose (before the first command)."""
