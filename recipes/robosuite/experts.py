@@ -55,6 +55,13 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from recipes.expert_demos import (
+    act_batched,
+    attempts_limit,
+    collect_successes,
+    print_summary,
+    success_summary,
+)
 from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import (
     OSC_POS_SCALE,
@@ -584,15 +591,7 @@ class ExpertPolicy:
 
     def __call__(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write ``action (N, A)`` into ``tensordict``."""
-        counts = tensordict.get("step_count").reshape(-1).tolist()
-        actions = []
-        for i, (expert, sim) in enumerate(zip(self.experts, self.env.sims, strict=True)):
-            if counts[i] == 0:
-                expert.reset(sim)
-            actions.append(expert.act(sim))
-        action = torch.as_tensor(np.stack(actions), dtype=torch.float32,
-                                 device=tensordict.device)
-        return tensordict.set(keys.ACTION, action)
+        return act_batched(tensordict, self.experts, self.env.sims)
 
 
 def _run_episode(env: RobosuiteEnv, expert: Any, seed: int,
@@ -663,16 +662,8 @@ def evaluate_expert(
                   f"({episode.batch_size[0]} steps, phase {expert.phase})", flush=True)
     seconds = time.perf_counter() - start
     env.close()
-    result = {
-        "task": task,
-        "action_space": action_space,
-        "attempts": n_episodes,
-        "successes": n_episodes - len(failed),
-        "success_rate": (n_episodes - len(failed)) / max(n_episodes, 1),
-        "failed_seeds": failed,
-        "mean_steps": float(np.mean(lengths)) if lengths else float("nan"),
-        "seconds_per_episode": seconds / max(n_episodes, 1),
-    }
+    result = {"task": task, "action_space": action_space,
+              **success_summary(n_episodes, failed, lengths, seconds)}
     if verbose:
         print(json.dumps(result), flush=True)
     return result
@@ -732,35 +723,19 @@ def generate_demos(
     from rfmp_rl.data.robomimic import write_robomimic
 
     _check(task, action_space)
-    if n_success < 1:
-        raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
-    max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
+    max_attempts = attempts_limit(n_success, max_attempts)
     cameras = task_cameras(task) if images else ()
     expert = make_expert(task, action_space, **expert_kwargs)
     env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
-    episodes: list[TensorDict] = []
-    kept, failed = [], []
-    seed = seed_start
-    start = time.perf_counter()
-    while len(episodes) < n_success and seed - seed_start < max_attempts:
+
+    def run(seed: int) -> tuple[TensorDict, bool, int]:
         episode, success = _run_episode(env, expert, seed, images)
-        if success:
-            episodes.append(episode)
-            kept.append(seed)
-        else:
-            failed.append(seed)
-        if verbose:
-            print(f"[{task}/{action_space}] seed {seed}: {'ok' if success else 'FAILED'} "
-                  f"({episode.batch_size[0]} steps) {len(episodes)}/{n_success}", flush=True)
-        seed += 1
-    seconds = time.perf_counter() - start
-    env.close()
-    attempts = seed - seed_start
-    if len(episodes) < n_success:
-        raise RuntimeError(
-            f"generate_demos: only {len(episodes)} of {n_success} successes in {attempts} "
-            f"attempts ({task}, {action_space}); failed seeds: {failed}"
-        )
+        return episode, success, episode.batch_size[0]
+
+    episodes, kept, failed, seconds = collect_successes(
+        run, n_success, max_attempts, seed_start=seed_start, close=env.close,
+        label=f"[{task}/{action_space}]", context=f" ({task}, {action_space})", verbose=verbose)
+    attempts = len(kept) + len(failed)
     rate = len(episodes) / attempts
     env_args = {
         "env_name": task,
@@ -802,7 +777,7 @@ def generate_demos(
         "seconds_per_episode": seconds / attempts,
     }
     if verbose:
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 
@@ -839,7 +814,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                                 seed_start=args.seed_start, path=out,
                                 max_attempts=args.max_attempts, verbose=not args.quiet, **kwargs)
     if args.quiet:  # the summary only
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 
