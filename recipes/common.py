@@ -76,6 +76,13 @@ def upgrade_argv(argv: Sequence[str]) -> list[str]:
     return out
 
 
+def run_cli(main: Callable[[], Any]) -> None:
+    """Run a recipe script's hydra ``main`` on the command line, its settings of earlier
+    versions renamed first (`upgrade_argv` prints them)."""
+    sys.argv = upgrade_argv(sys.argv)
+    main()
+
+
 def upgrade_config(config: Mapping[str, Any]) -> dict:
     """A stored recipe config (checkpoint or config.yaml) of earlier versions, whose model and
     loss settings were flat (``horizon``, ``t0_fraction``, ``algo: dp``), in today's groups;
@@ -354,6 +361,44 @@ class RecipeTraining:
     prepare: Callable[[DictConfig], None] | None = None
     heading: Callable | None = None
 
+    @classmethod
+    def from_utils(cls, utils, **parts) -> RecipeTraining:
+        """The training of the recipe whose ``utils`` module is given: its ``TASK_KEYS``,
+        ``check_config``, ``make_stores``, ``make_replay_buffer``, ``make_model`` and
+        ``eval_task``, `fit` told its ``CONTROL_RATE_HZ``; ``parts`` are the other fields (and
+        may replace these).
+
+        Example::
+
+            TRAINING = RecipeTraining.from_utils(
+                utils, recipe="kitchen", run_name=lambda cfg: str(cfg.algo),
+                what=lambda cfg: f"{cfg.algo} on Franka Kitchen")
+        """
+        rate = utils.CONTROL_RATE_HZ
+        return cls(**{
+            "task_keys": utils.TASK_KEYS, "check": utils.check_config,
+            "make_stores": utils.make_stores, "make_replay_buffer": utils.make_replay_buffer,
+            "make_model": utils.make_model, "eval_task": utils.eval_task,
+            "fit_options": lambda cfg: {"control_rate_hz": rate}, **parts})
+
+    def run(self, cfg: DictConfig, overrides=None) -> tuple[Path, Any]:
+        """`train`, also returning the engine's `FitResult` (steps, best score, interruption)."""
+        return train_run(cfg, self, overrides)
+
+    def train(self, cfg: DictConfig, overrides=None) -> Path:
+        """Train, keep the best checkpoint, optionally evaluate it; returns the run folder.
+        ``overrides``: the command line's explicit overrides (applied on top of a resumed run's
+        configuration)."""
+        return self.run(cfg, overrides)[0]
+
+    def main(self, cfg: DictConfig) -> None:
+        """The recipe's command line (its train.py's hydra ``main``): `run` with the command
+        line's overrides, then exit with `exit_code`."""
+        from hydra.core.hydra_config import HydraConfig
+
+        _, result = self.run(cfg, overrides=list(HydraConfig.get().overrides.task))
+        raise SystemExit(exit_code(result))
+
 
 def train_run(cfg: DictConfig, parts: RecipeTraining, overrides=None):
     """A recipe's training run: start (or resume) the run folder, build the data and the model,
@@ -494,6 +539,26 @@ def run_sweep(model, cfg: DictConfig, task: TaskEval, progress=None) -> list[dic
                  settings, task.metrics, seed=int(cfg.seed), labels=task.labels,
                  summary=task.summary, max_steps=task.max_steps, env_kwargs=task.env_kwargs,
                  progress=progress)
+
+
+def evaluate_checkpoint(cfg: DictConfig, recipe: str, check_config: Callable[[DictConfig], None],
+                        make_task: Callable[[DictConfig, Any], TaskEval],
+                        name: Callable[[DictConfig], str]) -> list[dict]:
+    """A recipe's eval.py: the sweep on ``cfg.checkpoint`` with the task settings of the
+    checkpoint's config (``check_config`` checks them) and the ``eval.*`` fields of ``cfg``;
+    prints and writes the tables (`report`) and returns their rows.
+
+    ``make_task(task_cfg, model)`` gives the recipe's `TaskEval`; ``name(task_cfg)`` opens the
+    table's title (``"Push-T state euclidean"``: ``"<name>: <algo> (<preset>, step ...)"``).
+    """
+    model, task_cfg, extra, out = load_for_eval(cfg, check_config)
+    task = make_task(task_cfg, model)
+    rows = run_sweep(model, task_cfg, task, progress=show(task))
+    title = (f"{name(task_cfg)}: {task_cfg.algo} ({task_cfg.model.unet_preset}, step "
+             f"{extra.get('step')}, {extra.get('train_minutes', float('nan')):.0f} min training)")
+    command = f"python recipes/{recipe}/eval.py " + " ".join(sys.argv[1:])
+    print(report(rows, out, task_cfg, task, title, command).read_text())
+    return rows
 
 
 def report(rows: list[dict], out: Path, cfg: DictConfig, task: TaskEval, title: str,

@@ -47,6 +47,13 @@ from typing import Any
 
 import numpy as np
 
+from recipes.expert_demos import (
+    act_batched,
+    attempts_limit,
+    collect_successes,
+    print_summary,
+    success_summary,
+)
 from rfmp_rl.envs.kitchen import (
     KITCHEN_MAX_STEPS,
     KITCHEN_TASKS,
@@ -305,17 +312,7 @@ class ExpertPolicy:
 
     def __call__(self, tensordict: Any) -> Any:
         """Write ``action (N, 9)`` into ``tensordict``."""
-        import torch
-
-        counts = tensordict.get("step_count").reshape(-1).tolist()
-        actions = []
-        for i, (expert, inst) in enumerate(zip(self.experts, self.env.instances, strict=True)):
-            if counts[i] == 0:
-                expert.reset(inst)
-            actions.append(expert.act(inst))
-        action = torch.as_tensor(np.stack(actions), dtype=torch.float32,
-                                 device=tensordict.device)
-        return tensordict.set("action", action)
+        return act_batched(tensordict, self.experts, self.env.instances)
 
 def run_expert_episode(inst: KitchenInstance, expert: KitchenExpert, seed: int,
                        max_steps: int = KITCHEN_MAX_STEPS) -> dict[str, Any]:
@@ -391,15 +388,9 @@ def evaluate_expert(n_episodes: int = 100, *, seed_start: int = 0, verbose: bool
                   f"({ep['steps']} steps, {ep['phase']})", flush=True)
     seconds = time.perf_counter() - start
     inst.close()
-    result = {
-        "attempts": n_episodes,
-        "successes": n_episodes - len(failed),
-        "success_rate": (n_episodes - len(failed)) / max(n_episodes, 1),
-        "subtask_rates": {t: c / max(n_episodes, 1) for t, c in counts.items()},
-        "failed_seeds": failed,
-        "mean_steps": float(np.mean(lengths)) if lengths else float("nan"),
-        "seconds_per_episode": seconds / max(n_episodes, 1),
-    }
+    result = success_summary(
+        n_episodes, failed, lengths, seconds,
+        subtask_rates={t: c / max(n_episodes, 1) for t, c in counts.items()})
     if verbose:
         print(json.dumps(result), flush=True)
     return result
@@ -513,30 +504,20 @@ def generate_demos(
     """
     from rfmp_rl.envs.kitchen import KITCHEN_CONTROL_FREQ
 
-    if n_success < 1:
-        raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
-    max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
+    max_attempts = attempts_limit(n_success, max_attempts)
     inst = KitchenInstance()
     expert = KitchenExpert(**expert_kwargs)
-    records, failed = [], []
-    seed = seed_start
-    start = time.perf_counter()
-    while len(records) < n_success and seed - seed_start < max_attempts:
+
+    def run(seed: int) -> tuple[dict[str, Any], bool, int]:
         rec = run_expert_episode(inst, expert, seed)
         rec["seed"] = seed
-        (records if rec["success"] else failed).append(rec if rec["success"] else seed)
-        if verbose:
-            print(f"[kitchen] seed {seed}: {'ok' if rec['success'] else 'FAILED'} "
-                  f"({rec['steps']} steps) {len(records)}/{n_success}", flush=True)
-        seed += 1
-    seconds = time.perf_counter() - start
-    inst.close()
-    attempts = seed - seed_start
-    if len(records) < n_success:
-        raise RuntimeError(f"generate_demos: only {len(records)} of {n_success} successes in "
-                           f"{attempts} attempts; failed seeds: {failed}")
+        return rec, rec["success"], rec["steps"]
+
+    records, kept, failed, seconds = collect_successes(
+        run, n_success, max_attempts, seed_start=seed_start, close=inst.close,
+        label="[kitchen]", verbose=verbose)
+    attempts = len(kept) + len(failed)
     rate = len(records) / attempts
-    kept = [r["seed"] for r in records]
     write_minari_kitchen(path, records, extra_metadata={
         "control_freq_hz": KITCHEN_CONTROL_FREQ,
         "expert": {**expert.info(), "success_rate": rate, "successes": len(records),
@@ -547,7 +528,7 @@ def generate_demos(
               "steps": int(sum(r["steps"] for r in records)),
               "seconds_per_episode": seconds / attempts}
     if verbose:
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
@@ -577,7 +558,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                                 max_attempts=args.max_attempts, verbose=not args.quiet,
                                 noise_std=args.noise_std)
     if args.quiet:
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 

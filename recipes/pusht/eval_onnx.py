@@ -28,7 +28,7 @@ import numpy as np
 from omegaconf import DictConfig, OmegaConf
 from utils import CONTROL_RATE_HZ, check_config, eval_task, make_replay_buffer, make_stores
 
-from recipes.common import deploy_classes, eval_config, load_for_eval, upgrade_argv
+from recipes.common import deploy_classes, eval_config, load_for_eval, run_cli
 from rfmp_rl import keys
 from rfmp_rl.eval import evaluate, seed_mean
 from rfmp_rl.eval.controller import run_controller, split_fields
@@ -146,5 +146,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
-    main()
+    run_cli(main)  # settings of earlier versions renamed (printed)

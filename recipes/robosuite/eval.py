@@ -12,26 +12,18 @@ upgraded), the ``eval.*`` fields from the command line. Writes eval.csv and eval
 
 from __future__ import annotations
 
-import sys
-
 import hydra
+import utils
 from omegaconf import DictConfig
-from utils import check_config, eval_task
 
-from recipes.common import load_for_eval, report, run_sweep, show, upgrade_argv
+from recipes import common
 
 
 def evaluate_checkpoint(cfg: DictConfig) -> list[dict]:
     """Run the sweep on ``cfg.checkpoint``; returns the table rows."""
-    model, task_cfg, extra, out = load_for_eval(cfg, check_config)
-    task = eval_task(task_cfg, model)
-    rows = run_sweep(model, task_cfg, task, progress=show(task))
-    title = (f"{task_cfg.task} {task_cfg.obs} {task_cfg.action_space}: {task_cfg.algo} "
-             f"({task_cfg.model.unet_preset}, step {extra.get('step')}, "
-             f"{extra.get('train_minutes', float('nan')):.0f} min training)")
-    command = "python recipes/robosuite/eval.py " + " ".join(sys.argv[1:])
-    print(report(rows, out, task_cfg, task, title, command).read_text())
-    return rows
+    return common.evaluate_checkpoint(
+        cfg, "robosuite", utils.check_config, utils.eval_task,  # the env follows the model
+        name=lambda task_cfg: f"{task_cfg.task} {task_cfg.obs} {task_cfg.action_space}")
 
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")
@@ -40,5 +32,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
-    main()
+    common.run_cli(main)

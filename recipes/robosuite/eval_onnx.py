@@ -29,7 +29,7 @@ import hydra
 from omegaconf import DictConfig, OmegaConf
 from utils import CONTROL_RATE_HZ, check_config, eval_task
 
-from recipes.common import deploy_classes, load_for_eval, run_sweep, upgrade_argv
+from recipes.common import deploy_classes, load_for_eval, run_cli, run_sweep
 from rfmp_rl.envs.robosuite import ROBOSUITE_MAX_STEPS
 from rfmp_rl.eval.controller import run_controller
 from rfmp_rl.eval.parallel import evaluation_env
@@ -161,5 +161,4 @@ def main(cfg: DictConfig) -> None:
 
 
 if __name__ == "__main__":
-    sys.argv = upgrade_argv(sys.argv)  # settings of earlier versions, renamed (printed)
-    main()
+    run_cli(main)  # settings of earlier versions renamed (printed)

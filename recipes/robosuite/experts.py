@@ -55,6 +55,13 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from recipes.expert_demos import (
+    act_batched,
+    attempts_limit,
+    collect_successes,
+    print_summary,
+    success_summary,
+)
 from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import (
     OSC_POS_SCALE,
@@ -177,6 +184,9 @@ class RobosuiteExpert:
         td["success"].item()  # True
     """
 
+    #: the geometry of each task the class plans for (``params`` is a copy of the task's entry)
+    _TASK_PARAMS: dict[str, dict[str, Any]] = _PARAMS
+
     def __init__(
         self,
         task: str,
@@ -194,7 +204,7 @@ class RobosuiteExpert:
         self.noise_std, self.rot_noise_std = float(noise_std), float(rot_noise_std)
         self.speed, self.turn_speed = float(speed), float(turn_speed)
         self.max_regrasps = int(max_regrasps)
-        self.params = dict(_PARAMS[task])
+        self.params = dict(self._TASK_PARAMS[task])
         self.rng = np.random.default_rng(seed)
         self.phase = "approach"
         self._sp_pos: np.ndarray | None = None
@@ -231,14 +241,8 @@ class RobosuiteExpert:
         self._nut_offset = 0.0
         self._nut_yaw = 0.0
         self._lift_ref = 0.0
-        robot = sim_env.robots[0]
+        self._read_arm(sim_env, 0)
         data = sim_env.sim.data
-        self._site_id = robot.eef_site_id["right"]
-        self._hand_name = robot.robot_model.eef_name["right"]
-        hand = np.array(data.get_body_xmat(self._hand_name))
-        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
-        self._hand_to_site = hand.T @ site
-        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
         self._body = object_body_id(sim_env, self.task)
         if self.task == "NutAssemblySquare":
             nut = sim_env.nuts[sim_env.nut_id]
@@ -250,6 +254,18 @@ class RobosuiteExpert:
             target = np.array(sim_env.target_bin_placements[sim_env.object_id])[:2]
             self._target = target + np.array(self.params["place_offset"])
             self._rest_z = float(data.body_xpos[self._body][2])  # the can stands on a bin floor
+
+    def _read_arm(self, sim_env: Any, robot_index: int) -> None:
+        """Read the frames of robot ``robot_index``'s arm: its grip site, its hand body, the
+        hand-to-site rotation and the orientation of its controller's base frame."""
+        robot = sim_env.robots[robot_index]
+        data = sim_env.sim.data
+        self._site_id = robot.eef_site_id["right"]
+        self._hand_name = robot.robot_model.eef_name["right"]
+        hand = np.array(data.get_body_xmat(self._hand_name))
+        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
+        self._hand_to_site = hand.T @ site
+        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
 
     def _eef(self, sim_env: Any) -> tuple[np.ndarray, np.ndarray]:
         data = sim_env.sim.data
@@ -461,14 +477,22 @@ class RobosuiteExpert:
         if self._sp_pos is None:
             self._sp_pos, self._sp_rot = eef.copy(), Rotation.from_matrix(eef_rot)
             self._sp_yaw = yaw_of(eef_rot)
-        goal_pos, goal_yaw, gripper, speed = self._goal(sim_env)
+        goal_pos, goal_orientation, gripper, speed = self._goal(sim_env)
         self.phase_steps += 1
         # Move the setpoint toward the goal, at most `speed` m and `turn_speed` rad per step.
         step = goal_pos - self._sp_pos
         dist = float(np.linalg.norm(step))
         self._sp_pos = goal_pos.copy() if dist <= speed else self._sp_pos + step * (speed / dist)
-        # The yaw moves linearly (never the other way round through +-pi, where the wrist
-        # joint ends); the orientation follows it, removing any initial tilt on the way.
+        self._turn_setpoint(goal_orientation)
+        return self._command(sim_env, eef, eef_rot, gripper)
+
+    def _turn_setpoint(self, goal_yaw: float) -> None:
+        """Turn the setpoint orientation toward the downward grip of yaw ``goal_yaw``.
+
+        The yaw moves linearly (never the other way round through +-pi, where the wrist joint
+        ends); the orientation follows it, removing any initial tilt on the way.
+        """
+        Rotation = _rot()
         self._sp_yaw += float(np.clip(goal_yaw - self._sp_yaw, -self.turn_speed, self.turn_speed))
         target = Rotation.from_matrix(down_rotation(self._sp_yaw))
         turn = (target * self._sp_rot.inv()).as_rotvec()
@@ -476,6 +500,11 @@ class RobosuiteExpert:
         if angle > 2 * self.turn_speed:
             turn *= 2 * self.turn_speed / angle
         self._sp_rot = Rotation.from_rotvec(turn) * self._sp_rot
+
+    def _command(self, sim_env: Any, eef: np.ndarray, eef_rot: np.ndarray,
+                 gripper: float) -> np.ndarray:
+        """The setpoint (plus the expert's noise) as a delta or abs_pose action."""
+        Rotation = _rot()
         pos, rot = self._sp_pos.copy(), self._sp_rot
         if self.noise_std > 0:
             pos = pos + self.rng.normal(0.0, self.noise_std, 3)
@@ -562,15 +591,7 @@ class ExpertPolicy:
 
     def __call__(self, tensordict: TensorDictBase) -> TensorDictBase:
         """Write ``action (N, A)`` into ``tensordict``."""
-        counts = tensordict.get("step_count").reshape(-1).tolist()
-        actions = []
-        for i, (expert, sim) in enumerate(zip(self.experts, self.env.sims, strict=True)):
-            if counts[i] == 0:
-                expert.reset(sim)
-            actions.append(expert.act(sim))
-        action = torch.as_tensor(np.stack(actions), dtype=torch.float32,
-                                 device=tensordict.device)
-        return tensordict.set(keys.ACTION, action)
+        return act_batched(tensordict, self.experts, self.env.sims)
 
 
 def _run_episode(env: RobosuiteEnv, expert: Any, seed: int,
@@ -641,16 +662,8 @@ def evaluate_expert(
                   f"({episode.batch_size[0]} steps, phase {expert.phase})", flush=True)
     seconds = time.perf_counter() - start
     env.close()
-    result = {
-        "task": task,
-        "action_space": action_space,
-        "attempts": n_episodes,
-        "successes": n_episodes - len(failed),
-        "success_rate": (n_episodes - len(failed)) / max(n_episodes, 1),
-        "failed_seeds": failed,
-        "mean_steps": float(np.mean(lengths)) if lengths else float("nan"),
-        "seconds_per_episode": seconds / max(n_episodes, 1),
-    }
+    result = {"task": task, "action_space": action_space,
+              **success_summary(n_episodes, failed, lengths, seconds)}
     if verbose:
         print(json.dumps(result), flush=True)
     return result
@@ -710,35 +723,19 @@ def generate_demos(
     from rfmp_rl.data.robomimic import write_robomimic
 
     _check(task, action_space)
-    if n_success < 1:
-        raise ValueError(f"generate_demos: n_success must be >= 1, got {n_success}")
-    max_attempts = 2 * n_success + 20 if max_attempts is None else int(max_attempts)
+    max_attempts = attempts_limit(n_success, max_attempts)
     cameras = task_cameras(task) if images else ()
     expert = make_expert(task, action_space, **expert_kwargs)
     env = RobosuiteEnv(task, [1], action_space, cameras=cameras, image_size=image_size)
-    episodes: list[TensorDict] = []
-    kept, failed = [], []
-    seed = seed_start
-    start = time.perf_counter()
-    while len(episodes) < n_success and seed - seed_start < max_attempts:
+
+    def run(seed: int) -> tuple[TensorDict, bool, int]:
         episode, success = _run_episode(env, expert, seed, images)
-        if success:
-            episodes.append(episode)
-            kept.append(seed)
-        else:
-            failed.append(seed)
-        if verbose:
-            print(f"[{task}/{action_space}] seed {seed}: {'ok' if success else 'FAILED'} "
-                  f"({episode.batch_size[0]} steps) {len(episodes)}/{n_success}", flush=True)
-        seed += 1
-    seconds = time.perf_counter() - start
-    env.close()
-    attempts = seed - seed_start
-    if len(episodes) < n_success:
-        raise RuntimeError(
-            f"generate_demos: only {len(episodes)} of {n_success} successes in {attempts} "
-            f"attempts ({task}, {action_space}); failed seeds: {failed}"
-        )
+        return episode, success, episode.batch_size[0]
+
+    episodes, kept, failed, seconds = collect_successes(
+        run, n_success, max_attempts, seed_start=seed_start, close=env.close,
+        label=f"[{task}/{action_space}]", context=f" ({task}, {action_space})", verbose=verbose)
+    attempts = len(kept) + len(failed)
     rate = len(episodes) / attempts
     env_args = {
         "env_name": task,
@@ -780,7 +777,7 @@ def generate_demos(
         "seconds_per_episode": seconds / attempts,
     }
     if verbose:
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 
@@ -817,7 +814,7 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
                                 seed_start=args.seed_start, path=out,
                                 max_attempts=args.max_attempts, verbose=not args.quiet, **kwargs)
     if args.quiet:  # the summary only
-        print(json.dumps({k: v for k, v in result.items() if k != "seeds"}), flush=True)
+        print_summary(result)
     return result
 
 

@@ -79,14 +79,7 @@ class ArmDriver(RobosuiteExpert):
         self._sp_pos = self._sp_rot = None
         self._sp_yaw = 0.0
         self.command = None
-        robot = sim_env.robots[self.robot]
-        data = sim_env.sim.data
-        self._site_id = robot.eef_site_id["right"]
-        self._hand_name = robot.robot_model.eef_name["right"]
-        hand = np.array(data.get_body_xmat(self._hand_name))
-        site = np.array(data.site_xmat[self._site_id]).reshape(3, 3)
-        self._hand_to_site = hand.T @ site
-        self._base_rot = np.array(robot.part_controllers["right"].origin_ori)
+        self._read_arm(sim_env, self.robot)
 
     def start(self, sim_env: Any) -> None:
         """Place the setpoint at the current grip-site pose (before the first command)."""
@@ -208,99 +201,93 @@ class TransportExpert:
         arm.regrasps += 1
         arm.go(phase if arm.regrasps <= self.max_regrasps else "give_up")
 
+    # ----- phase steps both arms use ------------------------------------------------------------
+    @staticmethod
+    def _move(sim: Any, arm: ArmDriver, goal: np.ndarray, tol: float, limit: int, then: str,
+              gripper: float, speed: float, yaw: float | None = None):
+        """Drive ``arm`` toward ``goal`` with the wrist at ``arm.yaw``; on to phase ``then`` once
+        it is there (`ArmDriver.at` with ``tol`` and ``yaw``) or after ``limit`` steps."""
+        if arm.at(sim, goal, tol, yaw) or arm.phase_steps > limit:
+            arm.go(then)
+            return None
+        return goal, arm.yaw, gripper, speed
+
+    @staticmethod
+    def _hold(arm: ArmDriver, steps: int, then: str, gripper: float, yaw: float | None = None):
+        """Keep ``arm``'s setpoint (wrist at ``yaw``, default ``arm.yaw``) with ``gripper`` for
+        ``steps`` steps, then on to phase ``then``."""
+        if arm.phase_steps >= steps:
+            arm.go(then)
+            return None
+        return arm._sp_pos.copy(), arm.yaw if yaw is None else yaw, gripper, arm.speed
+
+    def _up(self, arm: ArmDriver) -> np.ndarray:
+        """The goal straight above ``arm``'s setpoint at the carrying height."""
+        return np.array([arm._sp_pos[0], arm._sp_pos[1], self.params["carry_z"]])
+
+    def _grasp(self, sim: Any, arm: ArmDriver, name: str, point: np.ndarray, hover: float,
+               dz: float, above: tuple[float, int], down_speed: float, then: str):
+        """Phases ``<name>_above`` (``hover`` over ``point``, the wrist at ``arm.yaw``; tolerance
+        and step limit ``above``), ``<name>_down`` (to ``dz`` over ``point``) and ``<name>_close``
+        (12 steps; back to ``<name>_above`` if the fingers closed on nothing, else on to
+        ``then``)."""
+        ph = arm.phase
+        if ph == f"{name}_above":
+            return self._move(sim, arm, point + [0.0, 0.0, hover], *above, f"{name}_down",
+                              _GRIP_OPEN, arm.speed, arm.yaw)
+        if ph == f"{name}_down":
+            return self._move(sim, arm, point + [0.0, 0.0, dz], 0.006, 50, f"{name}_close",
+                              _GRIP_OPEN, down_speed * arm.speed)
+        if arm.phase_steps >= 12:
+            if arm._gap(sim) < self.params["min_gap"]:
+                self._regrasp(arm, f"{name}_above")
+            else:
+                arm.go(then)
+            return None
+        return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
+
     # ----- robot 0: lid, payload, hand-over ---------------------------------------------------
     def _plan0(self, sim: Any, arm: ArmDriver):
         p, ph = self.params, arm.phase
         eef = arm._eef(sim)[0]
-        if ph.startswith("lid"):
-            handle = np.array(sim.transport.lid_handle_pos, dtype=np.float64)
+        if ph in ("lid_above", "lid_down", "lid_close"):
             if ph == "lid_above":
                 arm.yaw = _closest_yaw(math.pi / 2, arm._sp_yaw, math.pi)  # across the handle
-                goal = handle + [0.0, 0.0, p["hover"]]
-                if arm.at(sim, goal, 0.015, arm.yaw) or arm.phase_steps > 80:
-                    arm.go("lid_down")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, arm.speed
-            if ph == "lid_down":
-                goal = handle + [0.0, 0.0, p["lid_dz"]]
-                if arm.at(sim, goal, 0.006) or arm.phase_steps > 50:
-                    arm.go("lid_close")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, 0.6 * arm.speed
-            if ph == "lid_close":
-                if arm.phase_steps >= 12:
-                    if arm._gap(sim) < p["min_gap"]:
-                        self._regrasp(arm, "lid_above")
-                    else:
-                        arm.go("lid_lift")
-                    return None
-                return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
-            if ph == "lid_lift":
-                goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
-                if arm.at(sim, goal, 0.02) or arm.phase_steps > 50:
-                    arm.go("lid_move")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, 0.8 * arm.speed
-            if ph == "lid_move":
-                drop = np.array(p["lid_drop"])
-                goal = np.array([drop[0], drop[1], p["carry_z"]])
-                if arm.at(sim, goal, 0.03) or arm.phase_steps > 80:
-                    arm.go("lid_lower")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, arm.speed
-            if ph == "lid_lower":
-                goal = np.array(p["lid_drop"])
-                if arm.at(sim, goal, 0.015) or arm.phase_steps > 40:
-                    arm.go("lid_release")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, 0.8 * arm.speed
-            if ph == "lid_release":
-                if arm.phase_steps >= 8:
-                    arm.go("lid_clear")
-                    return None
-                return arm._sp_pos.copy(), arm.yaw, _GRIP_OPEN, arm.speed
-            if ph == "lid_clear":
-                goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
-                if arm.at(sim, goal, 0.03) or arm.phase_steps > 30:
-                    arm.go("pay_above")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, arm.speed
+            handle = np.array(sim.transport.lid_handle_pos, dtype=np.float64)
+            return self._grasp(sim, arm, "lid", handle, p["hover"], p["lid_dz"], (0.015, 80),
+                               0.6, "lid_lift")
+        if ph == "lid_lift":
+            return self._move(sim, arm, self._up(arm), 0.02, 50, "lid_move", _GRIP_CLOSE,
+                              0.8 * arm.speed)
+        if ph == "lid_move":
+            drop = np.array(p["lid_drop"])
+            return self._move(sim, arm, np.array([drop[0], drop[1], p["carry_z"]]), 0.03, 80,
+                              "lid_lower", _GRIP_CLOSE, arm.speed)
+        if ph == "lid_lower":
+            return self._move(sim, arm, np.array(p["lid_drop"]), 0.015, 40, "lid_release",
+                              _GRIP_CLOSE, 0.8 * arm.speed)
+        if ph == "lid_release":
+            return self._hold(arm, 8, "lid_clear", _GRIP_OPEN)
+        if ph == "lid_clear":
+            return self._move(sim, arm, self._up(arm), 0.03, 30, "pay_above", _GRIP_OPEN,
+                              arm.speed)
         if ph.startswith("pay"):
             center, axis = self._payload_axis(sim)
             grip = center + p["grip0_along"] * np.array([axis[0], axis[1], 0.0])
-            if ph == "pay_above":
-                if arm.phase_steps == 0:
-                    self._plan_wrist(sim, arm, axis)
-                arm.yaw = _closest_yaw(self._across(axis), arm.yaw, math.pi)
-                goal = grip + [0.0, 0.0, p["bin_hover"]]
-                if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 90:
-                    arm.go("pay_down")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, arm.speed
-            if ph == "pay_down":
-                goal = grip + [0.0, 0.0, p["pay_dz"]]
-                if arm.at(sim, goal, 0.006) or arm.phase_steps > 50:
-                    arm.go("pay_close")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, 0.6 * arm.speed
-            if ph == "pay_close":
-                if arm.phase_steps >= 12:
-                    if arm._gap(sim) < p["min_gap"]:
-                        self._regrasp(arm, "pay_above")
-                    else:
-                        arm.go("pay_lift")
-                    return None
-                return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
+            if ph in ("pay_above", "pay_down", "pay_close"):
+                if ph == "pay_above":
+                    if arm.phase_steps == 0:
+                        self._plan_wrist(sim, arm, axis)
+                    arm.yaw = _closest_yaw(self._across(axis), arm.yaw, math.pi)
+                return self._grasp(sim, arm, "pay", grip, p["bin_hover"], p["pay_dz"],
+                                   (0.012, 90), 0.6, "pay_lift")
             if ph == "pay_lift":
-                goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
                 if arm.phase_steps > 8 and (arm._gap(sim) < p["min_gap"]
                                             or eef[2] - center[2] > 0.05):
                     self._regrasp(arm, "pay_above")
                     return None
-                if arm.at(sim, goal, 0.02) or arm.phase_steps > 50:
-                    arm.go("pay_carry")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, 0.8 * arm.speed
+                return self._move(sim, arm, self._up(arm), 0.02, 50, "pay_carry", _GRIP_CLOSE,
+                                  0.8 * arm.speed)
             if ph in ("pay_carry", "pay_hold"):
                 # turn the hammer (closed loop on its axis) until its head points to robot 0,
                 # the way round planned at the grasp (`_plan_wrist`)
@@ -316,10 +303,7 @@ class TransportExpert:
                     return None
                 return goal, yaw, _GRIP_CLOSE, arm.speed if ph == "pay_carry" else 0.5 * arm.speed
             if ph == "pay_release":
-                if arm.phase_steps >= 10:
-                    arm.go("clear_up")
-                    return None
-                return arm._sp_pos.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed
+                return self._hold(arm, 10, "clear_up", _GRIP_OPEN, arm._sp_yaw)
         if ph == "clear_up":  # straight up first: the open fingers would drag the hammer's head
             if arm.phase_steps == 0:
                 arm.clear_goal = arm._sp_pos + [0.0, 0.0, 0.08]
@@ -365,48 +349,24 @@ class TransportExpert:
         eef = arm._eef(sim)[0]
         if ph.startswith("trash"):
             pos, rot = self._pose(sim, self._trash)
-            if ph == "trash_above":
-                arm.yaw = _closest_yaw(_object_yaw(rot), arm._sp_yaw, math.pi / 2)
-                goal = pos + [0.0, 0.0, p["bin_hover"]]
-                if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 80:
-                    arm.go("trash_down")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, arm.speed
-            if ph == "trash_down":
-                goal = pos + [0.0, 0.0, p["trash_dz"]]
-                if arm.at(sim, goal, 0.006) or arm.phase_steps > 50:
-                    arm.go("trash_close")
-                    return None
-                return goal, arm.yaw, _GRIP_OPEN, 0.6 * arm.speed
-            if ph == "trash_close":
-                if arm.phase_steps >= 12:
-                    if arm._gap(sim) < p["min_gap"]:
-                        self._regrasp(arm, "trash_above")
-                    else:
-                        arm.go("trash_lift")
-                    return None
-                return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
+            if ph in ("trash_above", "trash_down", "trash_close"):
+                if ph == "trash_above":
+                    arm.yaw = _closest_yaw(_object_yaw(rot), arm._sp_yaw, math.pi / 2)
+                return self._grasp(sim, arm, "trash", pos, p["bin_hover"], p["trash_dz"],
+                                   (0.012, 80), 0.6, "trash_lift")
             if ph == "trash_lift":
-                goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
                 if arm.phase_steps > 8 and eef[2] - pos[2] > 0.04:
                     self._regrasp(arm, "trash_above")
                     return None
-                if arm.at(sim, goal, 0.02) or arm.phase_steps > 50:
-                    arm.go("trash_carry")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, 0.8 * arm.speed
+                return self._move(sim, arm, self._up(arm), 0.02, 50, "trash_carry", _GRIP_CLOSE,
+                                  0.8 * arm.speed)
             if ph == "trash_carry":
                 bin_pos = np.array(sim.transport.trash_bin_pos, dtype=np.float64)
                 goal = np.array([bin_pos[0], bin_pos[1], p["trash_drop_z"]])
-                if arm.at(sim, goal, 0.02) or arm.phase_steps > 80:
-                    arm.go("trash_release")
-                    return None
-                return goal, arm.yaw, _GRIP_CLOSE, arm.speed
+                return self._move(sim, arm, goal, 0.02, 80, "trash_release", _GRIP_CLOSE,
+                                  arm.speed)
             if ph == "trash_release":
-                if arm.phase_steps >= 8:
-                    arm.go("wait")
-                    return None
-                return arm._sp_pos.copy(), arm.yaw, _GRIP_OPEN, arm.speed
+                return self._hold(arm, 8, "wait", _GRIP_OPEN)
         center, axis = self._payload_axis(sim)
         grip = center + p["grip1_along"] * np.array([axis[0], axis[1], 0.0])
         if ph == "wait":
@@ -417,39 +377,18 @@ class TransportExpert:
                 arm.go("recv_above")
                 return None
             return goal, arm.yaw, _GRIP_OPEN, arm.speed
-        if ph == "recv_above":
-            arm.yaw = _closest_yaw(self._across(axis), arm._sp_yaw, math.pi)
-            goal = grip + [0.0, 0.0, p["hover"]]
-            if arm.at(sim, goal, 0.012, arm.yaw) or arm.phase_steps > 80:
-                arm.go("recv_down")
-                return None
-            return goal, arm.yaw, _GRIP_OPEN, arm.speed
-        if ph == "recv_down":
-            goal = grip + [0.0, 0.0, p["pay_dz"]]
-            if arm.at(sim, goal, 0.006) or arm.phase_steps > 50:
-                arm.go("recv_close")
-                return None
-            return goal, arm.yaw, _GRIP_OPEN, 0.5 * arm.speed
-        if ph == "recv_close":
-            if arm.phase_steps >= 12:
-                if arm._gap(sim) < p["min_gap"]:
-                    self._regrasp(arm, "recv_above")
-                else:
-                    self.handed = True
-                    arm.go("recv_wait")
-                return None
-            return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
+        if ph in ("recv_above", "recv_down", "recv_close"):
+            if ph == "recv_above":
+                arm.yaw = _closest_yaw(self._across(axis), arm._sp_yaw, math.pi)
+            step = self._grasp(sim, arm, "recv", grip, p["hover"], p["pay_dz"], (0.012, 80),
+                               0.5, "recv_wait")
+            self.handed = self.handed or arm.phase == "recv_wait"  # closed on the handle
+            return step
         if ph == "recv_wait":  # robot 0 lets go
-            if arm.phase_steps >= 14:
-                arm.go("recv_lift")
-                return None
-            return arm._sp_pos.copy(), arm.yaw, _GRIP_CLOSE, arm.speed
+            return self._hold(arm, 14, "recv_lift", _GRIP_CLOSE)
         if ph == "recv_lift":
-            goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
-            if arm.at(sim, goal, 0.03) or arm.phase_steps > 40:
-                arm.go("place_carry")
-                return None
-            return goal, arm.yaw, _GRIP_CLOSE, 0.6 * arm.speed
+            return self._move(sim, arm, self._up(arm), 0.03, 40, "place_carry", _GRIP_CLOSE,
+                              0.6 * arm.speed)
         if ph in ("place_carry", "place_lower"):
             bin_pos = np.array(sim.transport.target_bin_pos, dtype=np.float64)
             shift = bin_pos[:2] - center[:2]  # the hammer's centre over the bin's
@@ -468,13 +407,9 @@ class TransportExpert:
                 return None
             return goal, arm.yaw, _GRIP_CLOSE, 0.6 * arm.speed
         if ph == "place_release":
-            if arm.phase_steps >= 10:
-                arm.go("place_clear")
-                return None
-            return arm._sp_pos.copy(), arm.yaw, _GRIP_OPEN, arm.speed
+            return self._hold(arm, 10, "place_clear", _GRIP_OPEN)
         if ph == "place_clear":
-            goal = np.array([arm._sp_pos[0], arm._sp_pos[1], p["carry_z"]])
-            return goal, arm.yaw, _GRIP_OPEN, arm.speed
+            return self._up(arm), arm.yaw, _GRIP_OPEN, arm.speed
         return arm._sp_pos.copy(), arm._sp_yaw, _GRIP_OPEN, arm.speed  # give_up
 
     # ----- actions ----------------------------------------------------------------------------

@@ -40,7 +40,7 @@ from experts import (
     yaw_of,
 )
 
-from rfmp_rl.envs.robosuite import OSC_POS_SCALE, OSC_ROT_SCALE, ROBOSUITE_MUG_TASKS, _check
+from rfmp_rl.envs.robosuite import ROBOSUITE_MUG_TASKS, _check
 
 __all__ = ["MugExpert", "MUG_PARAMS"]
 
@@ -64,41 +64,24 @@ class MugExpert(RobosuiteExpert):
         action_space: ``"delta"`` (7-D) or ``"abs_pose"`` (8-D), as `RobosuiteEnv`'s.
         noise_std, rot_noise_std, seed, speed, turn_speed, max_regrasps: as `RobosuiteExpert`.
 
+    Runs as `RobosuiteExpert` (``reset`` after each env reset, then ``act`` every step).
+
     Example::
 
         env = RobosuiteEnv("MugFlip", [1], action_space="abs_pose", seeds=[0])
-        td = env.reset()
+        env.reset()
         expert = MugExpert("MugFlip", "abs_pose")
         expert.reset(env.sims[0])
-        while not td["done"].any():
-            action = torch.as_tensor(expert.act(env.sims[0]), dtype=torch.float32)[None]
-            td = env.step(td.set(keys.ACTION, action))["next"]
-        td["success"].item()  # True
+        expert.act(env.sims[0]).shape  # (8,): position, hand quaternion xyzw, gripper
     """
 
-    def __init__(
-        self,
-        task: str,
-        action_space: str = "delta",
-        *,
-        noise_std: float = 0.0,
-        rot_noise_std: float = 0.0,
-        seed: int | None = None,
-        speed: float = 0.015,
-        turn_speed: float = 0.06,
-        max_regrasps: int = 3,
-    ) -> None:
+    _TASK_PARAMS = MUG_PARAMS
+
+    def __init__(self, task: str, action_space: str = "delta", **expert_kwargs: Any) -> None:
         _check(task, action_space)
         if task not in ROBOSUITE_MUG_TASKS:
             raise ValueError(f"MugExpert: task must be one of {ROBOSUITE_MUG_TASKS}, got {task!r}")
-        self.task, self.action_space = task, action_space
-        self.noise_std, self.rot_noise_std = float(noise_std), float(rot_noise_std)
-        self.speed, self.turn_speed = float(speed), float(turn_speed)
-        self.max_regrasps = int(max_regrasps)
-        self.params = dict(MUG_PARAMS[task])
-        self.rng = np.random.default_rng(seed)
-        self.phase = "approach"
-        self._sp_pos: np.ndarray | None = None
+        super().__init__(task, action_space, **expert_kwargs)
 
     def reset(self, sim_env: Any) -> None:
         """Start a new episode on ``sim_env`` (a robosuite mug env, just reset)."""
@@ -252,43 +235,12 @@ class MugExpert(RobosuiteExpert):
     _plan_MugFlip = _plan
 
     # ----- actions ----------------------------------------------------------------------------
-    def act(self, sim_env: Any) -> np.ndarray:
-        """The action for the current step (float64, 7-D delta or 8-D abs_pose)."""
-        Rotation = _rot()
-        eef, eef_rot = self._eef(sim_env)
-        if self._sp_pos is None:
-            self._sp_pos, self._sp_rot = eef.copy(), Rotation.from_matrix(eef_rot)
-            self._sp_yaw = yaw_of(eef_rot)
-        goal_pos, goal_rot, gripper, speed = self._goal(sim_env)
-        self.phase_steps += 1
-        # The setpoint moves toward the goal, at most `speed` m and `turn_speed` rad per step.
-        step = goal_pos - self._sp_pos
-        dist = float(np.linalg.norm(step))
-        self._sp_pos = goal_pos.copy() if dist <= speed else self._sp_pos + step * (speed / dist)
+    def _turn_setpoint(self, goal_rot) -> None:
+        """Turn the setpoint orientation toward ``goal_rot`` (any rotation), at most
+        ``turn_speed`` rad per step."""
         turn = (goal_rot * self._sp_rot.inv()).as_rotvec()
         angle = float(np.linalg.norm(turn))
         if angle > self.turn_speed:
             turn *= self.turn_speed / angle
-        self._sp_rot = Rotation.from_rotvec(turn) * self._sp_rot
+        self._sp_rot = _rot().from_rotvec(turn) * self._sp_rot
         self._sp_yaw = yaw_of(self._sp_rot.as_matrix())
-        return self._command(sim_env, eef, eef_rot, gripper)
-
-    def _command(self, sim_env: Any, eef: np.ndarray, eef_rot: np.ndarray,
-                 gripper: float) -> np.ndarray:
-        """The setpoint (plus the expert's noise) as a delta or abs_pose action."""
-        Rotation = _rot()
-        pos, rot = self._sp_pos.copy(), self._sp_rot
-        if self.noise_std > 0:
-            pos = pos + self.rng.normal(0.0, self.noise_std, 3)
-        if self.rot_noise_std > 0:
-            rot = Rotation.from_rotvec(self.rng.normal(0.0, self.rot_noise_std, 3)) * rot
-        if self.action_space == "delta":
-            dpos = self._base_rot.T @ (pos - eef) / OSC_POS_SCALE
-            drot = self._base_rot.T @ (rot * Rotation.from_matrix(eef_rot).inv()).as_rotvec()
-            drot = drot / OSC_ROT_SCALE
-            return np.concatenate([np.clip(dpos, -1, 1), np.clip(drot, -1, 1), [gripper]])
-        hand = Rotation.from_matrix(rot.as_matrix() @ self._hand_to_site.T).as_quat()  # xyzw
-        current = np.array(sim_env.sim.data.get_body_xquat(self._hand_name))[[1, 2, 3, 0]]
-        if float(hand @ current) < 0:
-            hand = -hand
-        return np.concatenate([pos, hand, [gripper]])

@@ -80,9 +80,10 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import TransformedEnv
 
 from rfmp_rl import keys
+from rfmp_rl.envs.batch import SimulatorBatchEnv
 from rfmp_rl.envs.transforms import observation_windows
 
 __all__ = [
@@ -490,7 +491,7 @@ def measure_tracking_error(seed: int = 0, steps: int = 125, warmup: int = 10,
             "finger_mm_max": float(np.max(finger_err[warmup:]) * 1e3)}
 
 
-class FrankaKitchenEnv(EnvBase):
+class FrankaKitchenEnv(SimulatorBatchEnv):
     """A batch of Franka Kitchen envs (four subtasks, 12.5 Hz) as one TorchRL env.
 
     Args:
@@ -522,6 +523,8 @@ class FrankaKitchenEnv(EnvBase):
         out = env.rollout(3, break_when_any_done=False)
         out["next", "subtasks", "kettle"].shape  # torch.Size([2, 3, 1])
     """
+
+    simulators_attr = "instances"
 
     def __init__(
         self,
@@ -586,10 +589,6 @@ class FrankaKitchenEnv(EnvBase):
              for name in ("done", "terminated", "truncated")},
             shape=batch, device=dev)
 
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is not None:
-            self.seeds = [int(seed) + i for i in range(self.batch_size[0])]
-
     def _pack(self) -> TensorDict:
         n, dev = self.batch_size[0], self.device
         f32 = {"dtype": torch.float32, "device": dev}
@@ -602,59 +601,26 @@ class FrankaKitchenEnv(EnvBase):
             name: torch.as_tensor(flags[:, j], device=dev).reshape(n, 1)
             for j, name in enumerate(KITCHEN_SUBTASK_KEYS)
         }
-        success = torch.as_tensor(flags.all(1), device=dev).reshape(n, 1)
-        truncated = torch.as_tensor(self._truncated, device=dev).reshape(n, 1)
-        data.update(
-            success=success,
-            step_count=torch.as_tensor(self._count, dtype=torch.int64, device=dev).reshape(n, 1),
-            joint_velocity=torch.as_tensor(self._joint, **f32),
-            reward=torch.as_tensor(self._reward, **f32).reshape(n, 1),
-            terminated=success.clone(),
-            truncated=truncated,
-            done=success | truncated,
-        )
+        data.update(self._done_entries(flags.all(1),
+                                       joint_velocity=torch.as_tensor(self._joint, **f32)))
         return TensorDict(data, batch_size=self.batch_size, device=dev)
 
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
-        n = self.batch_size[0]
-        if tensordict is not None and tensordict.get("seed", None) is not None:
-            self.seeds = [int(s) for s in tensordict.get("seed").reshape(-1).tolist()]
-        which = range(n)
-        if tensordict is not None and tensordict.get("_reset", None) is not None:
-            which = np.flatnonzero(tensordict.get("_reset").reshape(n).cpu().numpy()).tolist()
-        for i in which:
-            self._last[i] = self.instances[i].reset(self.seeds[i])
-            self._count[i] = 0
-            self._reward[i] = 0.0
-            self._truncated[i] = False
-            self._joint[i] = 0.0
-        td = self._pack()
-        del td["reward"]  # TorchRL: no reward at reset
-        td.set("seed", torch.as_tensor(self.seeds, dtype=torch.int64, device=self.device))
-        return td
+    # ----- dynamics (`SimulatorBatchEnv`) -------------------------------------------------------
+    def _done(self, i: int) -> bool:
+        return self.instances[i].success
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get(keys.ACTION).detach().to(torch.float64).cpu().numpy()
-        for i, inst in enumerate(self.instances):
-            if inst.success or self._truncated[i]:
-                self._reward[i] = 0.0
-                continue  # frozen
-            if self.action_space_name == "ee_pose":
-                self._last[i] = inst.step_pose(action[i])
-            else:
-                self._last[i] = inst.step_joint_velocity(action[i])
-            self._joint[i] = inst.last_joint_action
-            self._count[i] += 1
-            self._reward[i] = inst.last_reward
-            self._truncated[i] = self._count[i] >= self.max_steps and not inst.success
-        return self._pack()
+    def _reset_instance(self, i: int) -> None:
+        self._last[i] = self.instances[i].reset(self.seeds[i])
+        self._joint[i] = 0.0
 
-    def close(self, *, raise_if_closed: bool = True) -> None:
-        """Close the kitchen envs and the TorchRL env."""
-        for inst in getattr(self, "instances", []):
-            inst.close()
-        self.instances = []
-        super().close(raise_if_closed=raise_if_closed)
+    def _step_instance(self, i: int, action: np.ndarray) -> None:
+        inst = self.instances[i]
+        if self.action_space_name == "ee_pose":
+            self._last[i] = inst.step_pose(action)
+        else:
+            self._last[i] = inst.step_joint_velocity(action)
+        self._joint[i] = inst.last_joint_action
+        self._reward[i] = inst.last_reward
 
 
 def make_kitchen_env(

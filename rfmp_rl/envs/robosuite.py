@@ -76,11 +76,12 @@ from typing import Any
 
 import numpy as np
 import torch
-from tensordict import TensorDict, TensorDictBase
+from tensordict import TensorDict
 from torchrl.data import Bounded, Categorical, Composite, Unbounded
-from torchrl.envs import EnvBase, TransformedEnv
+from torchrl.envs import TransformedEnv
 
 from rfmp_rl import keys
+from rfmp_rl.envs.batch import SimulatorBatchEnv
 from rfmp_rl.envs.transforms import QuaternionSigns, observation_windows
 
 __all__ = [
@@ -449,7 +450,7 @@ def _fresh_object_state(sim_env: Any) -> np.ndarray:
     return np.concatenate(parts)
 
 
-class RobosuiteEnv(EnvBase):
+class RobosuiteEnv(SimulatorBatchEnv):
     """A batch of robosuite manipulation envs (Panda, OSC_POSE, 20 Hz) as one TorchRL env.
 
     Args:
@@ -587,10 +588,6 @@ class RobosuiteEnv(EnvBase):
             device=dev,
         )
 
-    def _set_seed(self, seed: int | None) -> None:
-        if seed is not None:
-            self.seeds = [int(seed) + i for i in range(self.batch_size[0])]
-
     # ----- observation assembly ---------------------------------------------------------------
     def _observe(self, i: int, sim_obs: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
         out = {k: np.asarray(sim_obs[k], dtype=np.float64) for k in task_proprio_keys(self.task)}
@@ -602,7 +599,7 @@ class RobosuiteEnv(EnvBase):
         return out
 
     def _pack(self) -> TensorDict:
-        n, dev = self.batch_size[0], self.device
+        dev = self.device
         f32 = {"dtype": torch.float32, "device": dev}
         data: dict[str, torch.Tensor] = {}
         for key in (keys.OBSERVATION, *self.all_low_dim_keys):
@@ -610,16 +607,7 @@ class RobosuiteEnv(EnvBase):
         for cam in self.cameras:
             key = f"{cam}_image"
             data[key] = torch.as_tensor(np.stack([o[key] for o in self._last]), device=dev)
-        success = torch.as_tensor(self._success, device=dev).reshape(n, 1)
-        truncated = torch.as_tensor(self._truncated, device=dev).reshape(n, 1)
-        data.update(
-            success=success,
-            step_count=torch.as_tensor(self._count, dtype=torch.int64, device=dev).reshape(n, 1),
-            reward=torch.as_tensor(self._reward, **f32).reshape(n, 1),
-            terminated=success.clone(),
-            truncated=truncated,
-            done=success | truncated,
-        )
+        data.update(self._done_entries(self._success))
         return TensorDict(data, batch_size=self.batch_size, device=dev)
 
     def _osc_action(self, action: np.ndarray) -> np.ndarray:
@@ -628,48 +616,22 @@ class RobosuiteEnv(EnvBase):
         return np.concatenate([pose_action_to_osc(a, self.hand_to_site)
                                for a in np.split(action, num_arms(self.task))])
 
-    # ----- dynamics ---------------------------------------------------------------------------
-    def _reset(self, tensordict: TensorDictBase | None, **kwargs) -> TensorDictBase:
-        n = self.batch_size[0]
-        if tensordict is not None and tensordict.get("seed", None) is not None:
-            self.seeds = [int(s) for s in tensordict.get("seed").reshape(-1).tolist()]
-        which = range(n)
-        if tensordict is not None and tensordict.get("_reset", None) is not None:
-            mask = tensordict.get("_reset").reshape(n).cpu().numpy()
-            which = np.flatnonzero(mask).tolist()
-        for i in which:
-            with _global_numpy_seed(self.seeds[i]):
-                sim_obs = self.sims[i].reset()
-            self._count[i] = 0
-            self._success[i] = False
-            self._reward[i] = 0.0
-            self._truncated[i] = False
-            self._last[i] = self._observe(i, sim_obs)
-        td = self._pack()
-        del td["reward"]  # TorchRL: no reward at reset
-        td.set("seed", torch.as_tensor(self.seeds, dtype=torch.int64, device=self.device))
-        return td
+    # ----- dynamics (`SimulatorBatchEnv`) -------------------------------------------------------
+    def _done(self, i: int) -> bool:
+        return bool(self._success[i])
 
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict.get(keys.ACTION).detach().to(torch.float64).cpu().numpy()
-        for i, sim in enumerate(self.sims):
-            if self._success[i] or self._truncated[i]:
-                self._reward[i] = 0.0
-                continue  # frozen
-            sim_obs, _, _, _ = sim.step(self._osc_action(action[i]))
-            self._count[i] += 1
-            self._success[i] = bool(sim._check_success())
-            self._reward[i] = float(self._success[i])
-            self._truncated[i] = self._count[i] >= self.max_steps and not self._success[i]
-            self._last[i] = self._observe(i, sim_obs)
-        return self._pack()
+    def _reset_instance(self, i: int) -> None:
+        with _global_numpy_seed(self.seeds[i]):
+            sim_obs = self.sims[i].reset()
+        self._success[i] = False
+        self._last[i] = self._observe(i, sim_obs)
 
-    def close(self, *, raise_if_closed: bool = True) -> None:
-        """Close the robosuite envs (their offscreen renderers) and the TorchRL env."""
-        for sim in getattr(self, "sims", []):
-            sim.close()
-        self.sims = []
-        super().close(raise_if_closed=raise_if_closed)
+    def _step_instance(self, i: int, action: np.ndarray) -> None:
+        sim = self.sims[i]
+        sim_obs, _, _, _ = sim.step(self._osc_action(action))
+        self._success[i] = bool(sim._check_success())
+        self._reward[i] = float(self._success[i])
+        self._last[i] = self._observe(i, sim_obs)
 
 
 def make_robosuite_env(
