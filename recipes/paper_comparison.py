@@ -183,7 +183,8 @@ class RunState:
             self.status, "evaluated" + (f" by `{self.eval_command}`" if self.eval_command
                                         else ""))
         source = f" (from `{self.command_file}`)" if self.command_file else ""
-        text = f"{where}: {status}; training{source}: `{self.command}`"
+        command = "`, then `".join(self.command.splitlines())
+        text = f"{where}: {status}; training{source}: `{command}`"
         if self.evaluate and self.status != "evaluated":
             text += f"; evaluation: `{self.evaluate}`"
         return text
@@ -203,7 +204,9 @@ def read_run(root: Path, group: RunGroup, index: int) -> RunState:
     state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index],
                      evaluate=group.evaluations[index] if group.evaluations else None)
     if cmd_file.is_file():
-        state.command = " ".join(cmd_file.read_text().split())
+        # one command per line: a resumed run's file adds the resuming command below the first
+        state.command = "\n".join(" ".join(line.split())
+                                  for line in cmd_file.read_text().splitlines() if line.strip())
         state.command_file = f"{folder}.cmd"
     if not state.exists:
         return state

@@ -85,6 +85,13 @@ def test_every_run_of_a_row_carries_its_command(two_of_three):
     s1 = _line(text, "  - `runs/s1` (seed 1)")[0]  # the .cmd beside the folder wins
     assert s1.endswith("training (from `runs/s1.cmd`): `OMP_NUM_THREADS=1 .venv/bin/python "
                        "recipes/pusht/train.py algo=srfmp seed=1 lr=1e-3`")
+    # a resumed run's file holds its commands one per line, each quoted on its own
+    (root / "runs" / "s1.cmd").write_text("train.py seed=1 train.max_minutes=60\n"
+                                          "train.py resume=runs/s1 train.max_minutes=600\n")
+    text = pc.build(manifest, root, "python recipes/paper_comparison.py")
+    s1 = _line(text, "  - `runs/s1` (seed 1)")[0]
+    assert s1.endswith("training (from `runs/s1.cmd`): `train.py seed=1 train.max_minutes=60`, "
+                       "then `train.py resume=runs/s1 train.max_minutes=600`")
     assert _line(text, "  - `runs/s2` (seed 2)") == [
         "  - `runs/s2` (seed 2): not run; training: `.venv/bin/python recipes/pusht/train.py "
         "algo=srfmp seed=2 out_dir=runs/s2`"]
