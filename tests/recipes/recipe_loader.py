@@ -42,16 +42,17 @@ PUSHT_TINY = [
 LOCAL_MODULES = ("utils", "experts")
 
 
-def load_recipe(name: str):
-    """Import recipes/<name>/{utils,train,eval}.py (the scripts import their local `utils`, and
-    `experts` when they write demonstrations); yields ``{"utils": ..., "train": ..., "eval":
-    ...}`` and restores ``sys.path`` and those two modules after (each recipe has its own)."""
+def load_recipe(name: str, extra: tuple[str, ...] = ()):
+    """Import recipes/<name>/{utils,train,eval}.py and the ``extra`` scripts (e.g.
+    ``("eval_onnx",)``; the scripts import their local `utils`, and `experts` when they write
+    demonstrations); yields ``{"utils": ..., "train": ..., "eval": ..., <extra>: ...}`` and
+    restores ``sys.path`` and those two modules after (each recipe has its own)."""
     folder = ROOT / "recipes" / name
     saved = {local: sys.modules.pop(local, None) for local in LOCAL_MODULES}
     sys.path.insert(0, str(folder))
     try:
         mods = {}
-        for part in ("utils", "train", "eval"):
+        for part in ("utils", "train", "eval", *extra):
             spec = importlib.util.spec_from_file_location(
                 part if part == "utils" else f"{name}_{part}", folder / f"{part}.py"
             )

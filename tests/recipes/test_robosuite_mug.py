@@ -6,7 +6,6 @@ on the same seeds (eval_onnx.py)."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import os
 from pathlib import Path
 
@@ -14,8 +13,6 @@ import pytest
 from recipe_loader import compose, load_recipe
 
 from rfmp_rl.eval import read_table
-
-ROOT = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.slow
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -31,14 +28,8 @@ VARIANTS = {"PickPlaceMug": "srfmp", "MugFlip": "rfmp"}
 
 @pytest.fixture(scope="module")
 def recipe():
-    """train.py, eval.py and eval_onnx.py (imported while the recipe's `utils` is importable)."""
-    for mods in load_recipe("robosuite"):
-        spec = importlib.util.spec_from_file_location(
-            "robosuite_eval_onnx", ROOT / "recipes" / "robosuite" / "eval_onnx.py"
-        )
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield {**mods, "eval_onnx": module}
+    """The robosuite recipe's train.py, eval.py and eval_onnx.py."""
+    yield from load_recipe("robosuite", extra=("eval_onnx",))
 
 
 @pytest.fixture(scope="module")

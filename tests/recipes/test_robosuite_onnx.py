@@ -5,14 +5,10 @@ PyTorch policy."""
 from __future__ import annotations
 
 import csv
-import importlib.util
 import os
-from pathlib import Path
 
 import pytest
 from recipe_loader import compose, load_recipe
-
-ROOT = Path(__file__).resolve().parents[2]
 
 pytestmark = pytest.mark.slow
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -29,14 +25,8 @@ TINY = [
 
 @pytest.fixture(scope="module")
 def recipe():
-    """train.py and eval_onnx.py (imported while the recipe's `utils` is importable)."""
-    for mods in load_recipe("robosuite"):
-        spec = importlib.util.spec_from_file_location(
-            "robosuite_eval_onnx", ROOT / "recipes" / "robosuite" / "eval_onnx.py"
-        )
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
-        yield {**mods, "eval_onnx": module}
+    """The robosuite recipe's train.py, eval.py and eval_onnx.py."""
+    yield from load_recipe("robosuite", extra=("eval_onnx",))
 
 
 def test_eval_onnx_writes_both_success_rates(recipe, tmp_path_factory, tmp_path):
