@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ from omegaconf.errors import OmegaConfBaseException
 
 from rfmp_rl import keys
 from rfmp_rl.eval import Column, EvalConfig, plot_sweep, setting_label, sweep, write_tables
+from rfmp_rl.flows import StablePath
 from rfmp_rl.modules import ModelConfig, RecedingHorizonActor
 from rfmp_rl.modules import make_actor as make_receding_actor
 from rfmp_rl.objectives import LossConfig
@@ -218,11 +219,34 @@ def load_for_eval(cfg: DictConfig, check_config) -> tuple:
     check_config(task)
     from rfmp_rl.training import compile_networks, resolve_device
 
+    if cfg.get("tau_max") is not None:
+        set_tau_max(model, cfg.tau_max, payload.get("loss"), checkpoint)
     model = model.to(resolve_device(task.get("device", "auto")))
     if task.get("compile", False):
         compile_networks(model)
     out = Path(cfg.eval.out) if cfg.eval.out else checkpoint.parent / "eval"
     return model, task, payload.get("extra", {}), out
+
+
+def set_tau_max(model, value, loss: dict | None, checkpoint: Path) -> None:
+    """Give an SRFMP checkpoint's model the tau clamp `ModelConfig.tau_max`: ``"trained"``
+    (tau at the time_max of the checkpoint's stored loss settings) or a number."""
+    if not getattr(model, "stable", False):
+        raise SystemExit(f"tau_max applies to SRFMP checkpoints; {checkpoint} holds "
+                         f"{model.cfg.algorithm}")
+    if value == "trained":
+        if not loss:
+            raise SystemExit(f"tau_max=trained: {checkpoint} stores no loss settings; give "
+                             "tau_max as a number")
+        lo = LossConfig.from_dict(loss)
+        path = StablePath(model.chunk, lo.lambda_x, lo.lambda_tau, model.cfg.tau0,
+                          model.cfg.tau1)
+        value = float(path.tau_at(torch.tensor(float(lo.time_max))))
+    try:
+        model.cfg = replace(model.cfg, tau_max=float(value))
+    except ValueError as err:
+        raise SystemExit(f"tau_max={value}: {err}") from err
+    print(f"SRFMP network tau clamped at tau_max={model.cfg.tau_max:.6g}")
 
 
 def check_runtime_config(cfg: DictConfig) -> None:

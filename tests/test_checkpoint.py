@@ -152,7 +152,7 @@ def test_a_checkpoint_written_before_the_loss_config_loads(tmp_path):
         time_sampling="tau", time_max=2.0, t0_fraction=0.5, lambda_x=2.5, lambda_tau=2.0)
     assert payload["control_rate_hz"] == 10.0
     # every field of today's ModelConfig but the ones added since (their defaults apply)
-    added = {"obs_quaternions"}
+    added = {"obs_quaternions", "tau_max"}
     assert set(payload["model_config"]) == set(ModelConfig.__dataclass_fields__) - added
     loaded, _ = load_checkpoint(path)
     assert loaded.cfg.obs_quaternions is None  # raw observations, as it was trained

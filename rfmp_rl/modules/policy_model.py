@@ -89,6 +89,12 @@ class ModelConfig:
     lambda_x: float = 2.5  # SRFMP: rate of the learned field; its schedule's first step 1/lambda_x
     tau0: float = 0.0  # SRFMP: pseudo-time at the prior
     tau1: float = 1.0  # SRFMP: pseudo-time at the data
+    # SRFMP: the pseudo-time the network was trained up to (tau at LossConfig.time_max; the
+    # loss records it). Sampling feeds the network tau clamped to [tau0, tau_max]: after the
+    # first step (1 / lambda_x) the learned tau velocity carries tau to about tau1 and then
+    # past it, where the network was never trained. None: no clamp (checkpoints written
+    # before the field existed, which sample as they did then).
+    tau_max: float | None = None
     num_diffusion_steps: int = 100  # DDIM (and CP) training steps
     clip_sample: bool = True  # DDIM / CP clip the predicted clean sample to [-1, 1]
 
@@ -125,6 +131,11 @@ class ModelConfig:
             )
         if not self.lambda_x > 0:
             raise ValueError(f"ModelConfig.lambda_x must be > 0, got {self.lambda_x}")
+        if self.tau_max is not None:
+            lo, hi = sorted((self.tau0, self.tau1))
+            if not lo < self.tau_max <= hi:
+                raise ValueError(f"ModelConfig.tau_max must lie between tau0 ({self.tau0}) and "
+                                 f"tau1 ({self.tau1}), excluding tau0; got {self.tau_max}")
         first = int(self.unet_down_dims()[0])
         if self.time_embed_dim is None:
             self.time_embed_dim = first
@@ -377,8 +388,12 @@ class FlowModel(PolicyModel):
         """Network velocity on a flat chunk ``x (B, T_p * D)`` at ``time (B, 1)``.
 
         ``time`` is the flow time t for RFMP and the pseudo-time tau for SRFMP; SRFMP returns
-        ``(v_x, v_tau)``. Velocities are projected onto the tangent space at x.
+        ``(v_x, v_tau)`` and gives the network tau clamped to the trained range
+        (`ModelConfig.tau_max`). Velocities are projected onto the tangent space at x.
         """
+        if self.stable and self.cfg.tau_max is not None:
+            lo, hi = sorted((self.cfg.tau0, self.cfg.tau_max))
+            time = time.clamp(lo, hi)
         out = self._run_network(self.network, x, self.chunk.unflatten(x), time.reshape(-1), cond)
         if self.stable:
             v_x, v_tau = out

@@ -216,6 +216,17 @@ class FlowLoss(ImitationLoss):
                 )
             self.path = StablePath(model.chunk, cfg.lambda_x, cfg.lambda_tau, model.cfg.tau0,
                                    model.cfg.tau1)
+            trained = float(self.path.tau_at(torch.tensor(float(cfg.time_max))))
+            if model.cfg.tau_max is None:  # recorded in the model config (and its checkpoints)
+                model.cfg.tau_max = trained
+            elif abs(model.cfg.tau_max - trained) > 1e-6:
+                raise ValueError(
+                    f"{type(self).__name__}: the policy's ModelConfig.tau_max="
+                    f"{model.cfg.tau_max:.6g} differs from the pseudo-time this loss trains up "
+                    f"to ({trained:.6g}: tau at LossConfig.time_max={cfg.time_max}, lambda_tau="
+                    f"{cfg.lambda_tau}); sampling clamps the network's tau there: set "
+                    "ModelConfig.tau_max=None to record this loss's"
+                )
         else:
             self.path = GeodesicPath(model.chunk)
 

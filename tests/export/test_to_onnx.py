@@ -65,6 +65,27 @@ def test_srfmp_pose_policy_exports_with_metadata_and_matches_pytorch(tmp_path, m
     np.testing.assert_allclose(zero[0], mode.numpy(), atol=1e-4, rtol=0)
 
 
+def test_the_srfmp_tau_clamp_is_in_the_exported_graph(tmp_path, make_tiny_model):
+    # NFE 3: the refinement steps query the network past the first step, where the clamp acts
+    model = fitted(make_tiny_model("srfmp", "R3 x S3 x R1", horizon=8))
+    last = [m for m in model.network.tau_head.modules() if isinstance(m, torch.nn.Linear)][-1]
+    with torch.no_grad():  # v_tau = 5: the first step (1 / lambda_x = 0.4) ends at tau = 2
+        last.weight.zero_()
+        last.bias.fill_(5.0)
+    obs, noise = torch.randn(4, 2, 3) * 4, torch.randn(4, model.noise_dim)
+    with torch.no_grad():
+        free = model.sample(model.encode(obs), noise, nfe=3)
+    model.cfg.tau_max = 0.3
+    report = export_onnx(model, tmp_path / "p.onnx", nfe=3, control_rate_hz=20.0)
+    assert report.max_abs_diff <= 1e-4 and report.max_sphere_error <= 1e-5
+    session = ort.InferenceSession(str(tmp_path / "p.onnx"), providers=["CPUExecutionProvider"])
+    got = session.run(["action"], {"observation": obs.numpy(), "prior_noise": noise.numpy()})[0]
+    with torch.no_grad():
+        clamped = model.sample(model.encode(obs), noise, nfe=3)
+    np.testing.assert_allclose(got, clamped.numpy(), atol=1e-4, rtol=0)
+    assert not np.allclose(got, free.numpy(), atol=1e-3)
+
+
 def test_export_refuses_an_unfitted_policy(make_tiny_model):
     model = make_tiny_model("rfmp", "S2")
     with pytest.raises(ValueError, match="never fitted"):

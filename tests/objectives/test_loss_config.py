@@ -3,6 +3,8 @@ the SRFMP rates), their checks per algorithm, and the losses built from the acto
 
 from __future__ import annotations
 
+import math
+
 import pytest
 import torch
 from tensordict import TensorDict
@@ -97,9 +99,10 @@ def test_the_srfmp_path_uses_the_loss_rates_and_the_model_pseudo_times(make_tiny
     assert isinstance(loss.path, StablePath)
     assert (loss.path.lambda_x, loss.path.lambda_tau) == (3.0, 1.5)
     assert (loss.path.tau0, loss.path.tau1) == (0.1, 0.9)
-    assert make_loss(model).loss_cfg.lambda_x == 3.0  # the default follows the model
+    fresh = make_tiny_model("srfmp", lambda_x=3.0, tau0=0.1, tau1=0.9)
+    assert make_loss(fresh).loss_cfg.lambda_x == 3.0  # the default follows the model
     with pytest.raises(ValueError, match=r"lambda_x=2.5 differs .*ModelConfig.lambda_x=3.0"):
-        make_loss(model, LossConfig(lambda_x=2.5))
+        make_loss(make_tiny_model("srfmp", lambda_x=3.0), LossConfig(lambda_x=2.5))
 
 
 def test_the_losses_take_the_actor_or_its_wrapper(make_tiny_model):
@@ -122,3 +125,33 @@ def test_the_losses_take_the_actor_or_its_wrapper(make_tiny_model):
     out = loss(td)
     (out["loss_srfmp"] + out["loss_tau"]).backward()
     assert all(p.grad is not None for p in srfmp.network.parameters())
+
+
+def test_the_srfmp_loss_records_the_pseudo_time_it_trains_up_to(make_tiny_model):
+    model = make_tiny_model("srfmp")
+    assert model.cfg.tau_max is None
+    loss = make_loss(model, LossConfig(time_max=2.0, lambda_tau=1.5))
+    assert model.cfg.tau_max == pytest.approx(1 - math.exp(-3.0))
+    assert float(loss.path.tau_at(torch.tensor(2.0))) == pytest.approx(model.cfg.tau_max)
+    assert ModelConfig.from_dict(model.cfg.to_dict()).tau_max == model.cfg.tau_max
+    with pytest.raises(ValueError, match=r"tau_max=0.950213 differs .*time_max=1.0"):
+        make_loss(model, LossConfig(lambda_tau=1.5))
+    assert make_tiny_model("rfmp").cfg.tau_max is None
+    make_loss(make_tiny_model("rfmp"))  # nothing to record for RFMP
+
+
+def test_srfmp_sampling_gives_the_network_tau_clamped_to_the_trained_range(make_tiny_model):
+    torch.manual_seed(0)
+    model = make_tiny_model("srfmp")
+    cond, x = torch.randn(3, model.obs_encoder.out_dim), model.prior.sample(3)
+    inside, beyond = torch.full((3, 1), 0.5), torch.full((3, 1), 1.3)
+    free = [v.detach() for v in model.velocity(x, beyond, cond)]
+    model.cfg.tau_max = 0.5
+    clamped = model.velocity(x, beyond, cond)
+    at_max = model.velocity(x, inside, cond)
+    torch.testing.assert_close(clamped[0], at_max[0])
+    assert not torch.allclose(free[0], clamped[0])
+    below = model.velocity(x, torch.full((3, 1), -0.2), cond)  # clamped at tau0 too
+    torch.testing.assert_close(below[0], model.velocity(x, torch.zeros(3, 1), cond)[0])
+    with pytest.raises(ValueError, match="tau_max must lie between"):
+        ModelConfig(algorithm="srfmp", down_dims=[16, 32], tau_max=1.2)

@@ -93,3 +93,22 @@ def test_a_script_takes_an_old_command_line(tmp_path):
     cfg = OmegaConf.create(done.stdout)
     assert cfg.algo == "ddim" and cfg.model.horizon == 8 and cfg.optim.lr == 1e-3
     assert "note: horizon=8 is now model.horizon=8" in done.stderr
+
+
+def test_tau_max_for_an_srfmp_checkpoint_without_one(make_tiny_model, tmp_path):
+    import math
+
+    from rfmp_rl.objectives import LossConfig
+
+    model = make_tiny_model("srfmp")
+    loss = LossConfig(time_max=2.0).to_dict()
+    common.set_tau_max(model, "trained", loss, tmp_path / "best.pt")
+    assert model.cfg.tau_max == pytest.approx(1 - math.exp(-5.0))  # tau at t = 2, rate 2.5
+    common.set_tau_max(model, 0.9, loss, tmp_path / "best.pt")
+    assert model.cfg.tau_max == 0.9
+    with pytest.raises(SystemExit, match="tau_max=1.5: ModelConfig.tau_max must lie between"):
+        common.set_tau_max(model, 1.5, loss, tmp_path / "best.pt")
+    with pytest.raises(SystemExit, match="stores no loss settings"):
+        common.set_tau_max(model, "trained", None, tmp_path / "best.pt")
+    with pytest.raises(SystemExit, match="applies to SRFMP checkpoints.*holds rfmp"):
+        common.set_tau_max(make_tiny_model("rfmp"), "trained", loss, tmp_path / "best.pt")
