@@ -19,6 +19,9 @@ from rfmp_rl.checkpoint import read_checkpoint
 
 __all__ = ["check_resumable", "resume_checkpoint", "resume_config"]
 
+#: ModelConfig fields a loss fills in at construction: a freshly built model has them unset.
+RECORDED_BY_THE_LOSS = ("tau_max",)
+
 
 def check_resumable(payload: dict, path, recipe: str, model_config: dict | None = None) -> None:
     """Refuse a checkpoint that cannot continue a run of ``recipe`` (no training state: best.pt
@@ -34,8 +37,11 @@ def check_resumable(payload: dict, path, recipe: str, model_config: dict | None 
     if model_config is None:
         return
     stored = payload["model_config"]
+    # tau_max is written by the SRFMP loss when it is built (after this check), which also
+    # refuses a run whose recorded range differs from the one it trains
     differ = sorted(k for k in set(stored) | set(model_config)
-                    if stored.get(k) != model_config.get(k))
+                    if stored.get(k) != model_config.get(k)
+                    and not (k in RECORDED_BY_THE_LOSS and model_config.get(k) is None))
     if differ:
         details = ", ".join(f"{k}: run {stored.get(k)!r} vs now {model_config.get(k)!r}"
                             for k in differ)
