@@ -239,9 +239,8 @@ def set_tau_max(model, value, loss: dict | None, checkpoint: Path) -> None:
             raise SystemExit(f"tau_max=trained: {checkpoint} stores no loss settings; give "
                              "tau_max as a number")
         lo = LossConfig.from_dict(loss)
-        path = StablePath(model.chunk, lo.lambda_x, lo.lambda_tau, model.cfg.tau0,
-                          model.cfg.tau1)
-        value = float(path.tau_at(torch.tensor(float(lo.time_max))))
+        value = lo.trained_tau_max(StablePath(model.chunk, lo.lambda_x, lo.lambda_tau,
+                                              model.cfg.tau0, model.cfg.tau1))
     try:
         model.cfg = replace(model.cfg, tau_max=float(value))
     except ValueError as err:

@@ -216,7 +216,7 @@ class FlowLoss(ImitationLoss):
                 )
             self.path = StablePath(model.chunk, cfg.lambda_x, cfg.lambda_tau, model.cfg.tau0,
                                    model.cfg.tau1)
-            trained = float(self.path.tau_at(torch.tensor(float(cfg.time_max))))
+            trained = cfg.trained_tau_max(self.path)
             if model.cfg.tau_max is None:  # recorded in the model config (and its checkpoints)
                 model.cfg.tau_max = trained
             elif abs(model.cfg.tau_max - trained) > 1e-6:

@@ -110,6 +110,11 @@ class LossConfig:
             t = t.masked_fill(at_start, 0.0)
         return t
 
+    def trained_tau_max(self, path: StablePath) -> float:
+        """The largest pseudo-time these settings train SRFMP at: tau of ``path`` at
+        ``time_max`` (`ModelConfig.tau_max`)."""
+        return float(path.tau_at(torch.tensor(float(self.time_max))))
+
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
