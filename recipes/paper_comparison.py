@@ -1,7 +1,7 @@
 """The paper's claims beside ours, one table each, read from the run folders: writes
 ``results/paper_comparison.md``.
 
-    python recipes/paper_comparison.py --out results/paper_comparison.md
+    python recipes/paper_comparison.py --record --out results/paper_comparison.md
     python recipes/paper_comparison.py --manifest my_runs.yaml --root /data/rfmp_rl
 
 ``recipes/paper_comparison.yaml`` (the manifest) names every group of training runs (folder per
@@ -20,6 +20,13 @@ What is read (run folders relative to ``--root``, default the repository root):
 - ``<run>.cmd`` beside the folder: the training command that made it (the manifest's otherwise).
 - the epoch-time benchmark's markdown (``results/epoch_time.md``).
 
+Run folders hold checkpoints and stay out of git; their evaluation tables and commands are small.
+``--record`` copies them into ``results/records/<folder>/...`` (the folder's path under
+``--records``), and a folder that is absent is read from its record there, so the report can be
+regenerated from a clone that has none of the runs. A record may carry a second comment line
+``# transcribed from <file> ...``: its figures were copied from committed results text because
+the run folder itself was not kept; the report names that source beside the run.
+
 Several training seeds of one row give their mean and sample standard deviation. A run folder
 that does not exist reads ``not run``, one without its evaluation ``no evaluation yet``: no cell
 holds a figure that no run produced.
@@ -29,6 +36,8 @@ from __future__ import annotations
 
 import argparse
 import math
+import os
+import shutil
 import statistics
 import sys
 from dataclasses import dataclass, field
@@ -41,6 +50,8 @@ from rfmp_rl.eval import read_table
 
 ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = Path(__file__).with_name("paper_comparison.yaml")
+RECORDS = ROOT / "results" / "records"
+TRANSCRIBED = "transcribed from "
 #: The figure each recipe's eval.csv reports for the paper's metric.
 METRICS = {"pusht": "score", "robosuite": "success"}
 EFFICIENCY_COLUMNS = ("task", "algo", "seed", "epoch", "nfe", "success")
@@ -176,6 +187,9 @@ class RunState:
     eval_command: str | None = None
     status: str = NOT_RUN
     evaluate: str | None = None
+    record: str | None = None
+    transcribed: str | None = None
+    table_path: Path | None = None
 
     def describe(self) -> str:
         where = f"`{self.folder}`" + ("" if self.seed is None else f" (seed {self.seed})")
@@ -185,24 +199,45 @@ class RunState:
         source = f" (from `{self.command_file}`)" if self.command_file else ""
         command = "`, then `".join(self.command.splitlines())
         text = f"{where}: {status}; training{source}: `{command}`"
+        if self.record:
+            text += f"; read from its record `{self.record}`"
+            if self.transcribed:
+                text += f" ({TRANSCRIBED}{self.transcribed})"
         if self.evaluate and self.status != "evaluated":
             text += f"; evaluation: `{self.evaluate}`"
         return text
 
 
-def _first_comment(path: Path) -> str | None:
+def _comments(path: Path) -> list[str]:
+    """The ``#`` lines heading a table (``#`` and surrounding blanks stripped)."""
+    out = []
     with open(path) as f:
-        line = f.readline()
-    return line[1:].strip() if line.startswith("#") else None
+        for line in f:
+            if not line.startswith("#"):
+                break
+            out.append(line[1:].strip())
+    return out
 
 
-def read_run(root: Path, group: RunGroup, index: int) -> RunState:
-    """The state of ``group``'s ``index``-th folder under ``root``."""
+def _shown_path(path: Path) -> str:
+    try:
+        return str(path.resolve().relative_to(ROOT))
+    except ValueError:
+        return str(path)
+
+
+def read_run(root: Path, group: RunGroup, index: int, records: Path | None = None) -> RunState:
+    """The state of ``group``'s ``index``-th folder under ``root``; a folder that is absent is
+    read from its record under ``records`` (`record_runs`) when there is one."""
     folder = group.folders[index]
     path = root / folder
-    cmd_file = path.with_name(path.name + ".cmd")
     state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index],
                      evaluate=group.evaluations[index] if group.evaluations else None)
+    if not state.exists and records is not None and (records / folder / group.file).is_file():
+        path = records / folder
+        state.exists = True
+        state.record = _shown_path(path / group.file)
+    cmd_file = path.with_name(path.name + ".cmd")
     if cmd_file.is_file():
         # one command per line: a resumed run's file adds the resuming command below the first
         state.command = "\n".join(" ".join(line.split())
@@ -210,18 +245,53 @@ def read_run(root: Path, group: RunGroup, index: int) -> RunState:
         state.command_file = f"{folder}.cmd"
     if not state.exists:
         return state
-    table = path / group.file
+    table = state.table_path = path / group.file
     if not table.is_file():
         state.status = NO_EVAL
         return state
     state.rows = read_table(table)
-    state.eval_command = _first_comment(table)
+    comments = _comments(table)
+    state.eval_command = comments[0] if comments else None
+    state.transcribed = next((c[len(TRANSCRIBED):] for c in comments[1:]
+                              if c.startswith(TRANSCRIBED)), None)
     state.status = "evaluated"
     return state
 
 
-def read_group(root: Path, group: RunGroup) -> list[RunState]:
-    return [read_run(root, group, i) for i in range(len(group.folders))]
+def read_group(root: Path, group: RunGroup, records: Path | None = None) -> list[RunState]:
+    return [read_run(root, group, i, records) for i in range(len(group.folders))]
+
+
+def _copy_atomic(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
+    tmp = dst.with_name(f".{dst.name}.tmp{os.getpid()}")
+    try:
+        shutil.copyfile(src, tmp)
+        os.replace(tmp, dst)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[Path]:
+    """Copy each existing run folder's evaluation table (the group's ``file``) and its
+    ``<folder>.cmd`` to the same paths under ``records``; returns the records written.
+
+    Only those files are written, each replaced atomically; nothing else under ``records`` is
+    touched, so the records of runs that are absent stay as they are.
+    """
+    written = []
+    for group in groups.values():
+        for folder in group.folders:
+            path = root / folder
+            if not path.is_dir():
+                continue
+            for src, rel in ((path / group.file, Path(folder) / group.file),
+                             (path.with_name(path.name + ".cmd"), Path(f"{folder}.cmd"))):
+                dst = records / rel
+                if src.is_file() and dst not in written:
+                    _copy_atomic(src, dst)
+                    written.append(dst)
+    return written
 
 
 # ----- cells -----------------------------------------------------------------------------------
@@ -322,11 +392,12 @@ def _head(table: dict) -> list[str]:
     return lines
 
 
-def sweep_table(table: dict, groups: dict[str, RunGroup], root: Path) -> list[str]:
+def sweep_table(table: dict, groups: dict[str, RunGroup], root: Path,
+                records: Path | None = None) -> list[str]:
     """Rows: each policy at each (NFE, T asked); columns: T reached, the paper, our groups."""
     slots = table.get("columns") or {}
     notes = Footnotes()
-    states = {name: read_group(root, groups[name]) for row in table["rows"]
+    states = {name: read_group(root, groups[name], records) for row in table["rows"]
               for name in (row.get(s) for s in slots) if name}
     header = ["policy", "NFE", "T asked", "T reached", "paper", *slots.values()]
     lines = _head(table)
@@ -366,7 +437,8 @@ def _efficiency_rows(state: RunState, path: Path) -> list[dict]:
     return state.rows or []
 
 
-def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path) -> list[str]:
+def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path,
+                     records: Path | None = None) -> list[str]:
     """Rows: task and algorithm; columns: success at each snapshot epoch at the table's NFE."""
     nfe, epochs = int(table["nfe"]), [int(e) for e in table["epochs"]]
     t_end = float(table.get("t_end", 1.0))
@@ -378,13 +450,13 @@ def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path) -> li
                             "| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
     for row in table["rows"]:
         group = groups[row["runs"]]
-        states = read_group(root, group)
+        states = read_group(root, group, records)
         by_epoch: dict[int, list[float]] = {e: [] for e in epochs}
         reached = []
         for state in states:
-            for r in _efficiency_rows(state, root / state.folder / group.file):
+            for r in _efficiency_rows(state, state.table_path):
                 if (r["task"], r["algo"]) != (row["task"], row["algo"]):
-                    raise ValueError(f"{root / state.folder / group.file}: a row of "
+                    raise ValueError(f"{state.table_path}: a row of "
                                      f"{r['task']}/{r['algo']}, but the manifest row is "
                                      f"{row['task']}/{row['algo']}")
                 if (int(r["nfe"]) == nfe and int(r["epoch"]) in by_epoch
@@ -457,12 +529,17 @@ def epoch_time_table(table: dict, root: Path) -> list[str]:
 
 
 # ----- the report ------------------------------------------------------------------------------
-def build(manifest: Path = MANIFEST, root: Path = ROOT, command: str = "") -> str:
-    """The markdown of every table of ``manifest``, run folders read under ``root``."""
+def build(manifest: Path = MANIFEST, root: Path = ROOT, command: str = "",
+          records: Path | None = None) -> str:
+    """The markdown of every table of ``manifest``, run folders read under ``root`` (an absent
+    folder from its record under ``records``, when given)."""
     groups, tables = load_manifest(manifest)
+    source = f"the run folders named in `{_shown_path(manifest)}`"
+    if records is not None:
+        source += (f" (a folder that is absent: its record under `{_shown_path(records)}`, "
+                   "the folder's evaluation table and command kept in git)")
     lines = ["# The paper's claims beside ours", "",
-             f"Generated by `{command}` from the run folders named in "
-             f"`{_shown(manifest)}`.", "",
+             f"Generated by `{command}` from {source}.", "",
              "Each row is one policy at one NFE and end time T asked for; `T reached` is where "
              "our runs' solver stopped (SRFMP's first step ends at 1 / lambda_x = 0.4, each "
              "refinement step is at most 0.4 long), `-` while no run is evaluated. Figures: "
@@ -476,19 +553,12 @@ def build(manifest: Path = MANIFEST, root: Path = ROOT, command: str = "") -> st
     for table in tables:
         kind = table.get("kind", "sweep")
         if kind == "sweep":
-            lines += sweep_table(table, groups, root)
+            lines += sweep_table(table, groups, root, records)
         elif kind == "efficiency":
-            lines += efficiency_table(table, groups, root)
+            lines += efficiency_table(table, groups, root, records)
         else:
             lines += epoch_time_table(table, root)
     return "\n".join(lines).rstrip() + "\n"
-
-
-def _shown(path: Path) -> str:
-    try:
-        return str(path.resolve().relative_to(ROOT))
-    except ValueError:
-        return str(path)
 
 
 def main(argv: list[str] | None = None) -> str:
@@ -497,11 +567,26 @@ def main(argv: list[str] | None = None) -> str:
                         help="runs and tables (default recipes/paper_comparison.yaml)")
     parser.add_argument("--root", type=Path, default=ROOT,
                         help="where the manifest's run folders are (default the repository)")
+    parser.add_argument("--records", type=Path, default=RECORDS,
+                        help="where run folders' records are kept and read when a folder is "
+                             "absent (default results/records)")
+    parser.add_argument("--no-records", action="store_true",
+                        help="read only the run folders")
+    parser.add_argument("--record", action="store_true",
+                        help="first copy every existing run folder's evaluation table and "
+                             ".cmd into --records")
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
     args = parser.parse_args(argv)
+    if args.record and args.no_records:
+        parser.error("--record and --no-records exclude each other")
     argv = sys.argv[1:] if argv is None else argv
     command = " ".join(["python recipes/paper_comparison.py", *argv])
-    text = build(args.manifest, args.root, command)
+    records = None if args.no_records else args.records
+    if args.record:
+        groups, _ = load_manifest(args.manifest)
+        for path in record_runs(groups, args.root, records):
+            print(f"recorded {_shown_path(path)}", file=sys.stderr)
+    text = build(args.manifest, args.root, command, records)
     sys.stdout.write(text)
     if args.out:
         args.out.parent.mkdir(parents=True, exist_ok=True)

@@ -137,6 +137,63 @@ def test_the_report_command_heads_the_written_file(two_of_three, tmp_path):
                                + " ".join(argv) + "`")
 
 
+def test_records_keep_the_report_without_the_run_folders(two_of_three, tmp_path):
+    manifest, root = two_of_three
+    (root / "runs" / "s1.cmd").write_text("train.py seed=1 lr=1e-3\n")
+    (root / "runs" / "s0" / "best.pt").write_bytes(b"weights")  # never recorded
+    records = tmp_path / "records"
+    keep = records / "runs" / "other" / "eval" / "eval.csv"  # a record of another run
+    keep.parent.mkdir(parents=True)
+    keep.write_text("# kept\n")
+    written = pc.record_runs(pc.load_manifest(manifest)[0], root, records)
+    assert sorted(p.relative_to(records).as_posix() for p in written) == [
+        "runs/s0/eval/eval.csv", "runs/s1.cmd", "runs/s1/eval/eval.csv"]
+    assert keep.read_text() == "# kept\n"
+    assert not (records / "runs" / "s0" / "best.pt").exists()
+    assert not list(records.rglob("*.tmp*"))
+    live = pc.build(manifest, root, "cmd", records)
+    # the run folders gone: the same cells, read from the records
+    empty = tmp_path / "clone"
+    empty.mkdir()
+    kept = pc.build(manifest, empty, "cmd", records)
+    assert _line(kept, "| SRFMP |") == _line(live, "| SRFMP |")
+    s1 = _line(kept, "  - `runs/s1` (seed 1)")[0]
+    assert "training (from `runs/s1.cmd`): `train.py seed=1 lr=1e-3`" in s1
+    assert s1.endswith(f"read from its record `{records / 'runs/s1/eval/eval.csv'}`")
+    assert "read from its record" not in live  # a folder that exists is read, not its record
+    # without records the same clone reads "not run"
+    assert _line(pc.build(manifest, empty, "cmd"), "| SRFMP |")[0].endswith(
+        "| not run [1] | not run [2] |")
+
+
+def test_a_transcribed_record_names_its_source(two_of_three, tmp_path):
+    manifest, _ = two_of_three
+    records = tmp_path / "records"
+    _eval_csv(records / "runs" / "s0", [(1, 1.0, 0.4, 0.61)])
+    table = records / "runs" / "s0" / "eval" / "eval.csv"
+    lines = table.read_text().splitlines()
+    table.write_text("\n".join([lines[0], "# transcribed from results/pusht.md at commit "
+                                 "abc1234: the run folder was not kept", *lines[1:]]) + "\n")
+    text = pc.build(manifest, tmp_path / "clone", "cmd", records)
+    assert _line(text, "| SRFMP | 1 |")[0].endswith("| 0.610 (1 of 3 runs) [2] |")
+    s0 = _line(text, "  - `runs/s0` (seed 0)")[0]
+    assert "evaluated by `python recipes/pusht/eval.py checkpoint=x/best.pt`" in s0
+    assert s0.endswith("(transcribed from results/pusht.md at commit abc1234: the run folder "
+                       "was not kept)")
+
+
+def test_main_records_then_reports(two_of_three, tmp_path):
+    manifest, root = two_of_three
+    records, out = tmp_path / "records", tmp_path / "report.md"
+    pc.main(["--manifest", str(manifest), "--root", str(root), "--records", str(records),
+             "--record", "--out", str(out)])
+    assert (records / "runs" / "s0" / "eval" / "eval.csv").read_text() == (
+        root / "runs" / "s0" / "eval" / "eval.csv").read_text()
+    assert "its record under" in out.read_text().splitlines()[2]
+    with pytest.raises(SystemExit):
+        pc.main(["--manifest", str(manifest), "--record", "--no-records"])
+
+
 def _efficiency(folder: Path, seed: int, successes: dict[int, float], task="Lift",
                 algo="srfmp") -> None:
     folder.mkdir(parents=True)
