@@ -11,9 +11,16 @@ controller (``deploy/rfmp_deploy``: numpy and onnxruntime only, zero prior noise
 clipping and safety checks) in a batch-1 env per seed, fed the env's per-step observation keys.
 Both use the seeds ``eval.seed_start .. + eval.seeds`` and the step limit ``eval.max_steps``.
 
-Writes policy_nfe<N>.onnx, eval_onnx.md and eval_onnx.csv (seed, torch_success, onnx_success)
-to ``eval.out`` (default ``<checkpoint folder>/eval_onnx``); exits non-zero when the two success
-rates differ.
+Contact-rich episodes can end differently from actions that differ in the sixth decimal, so a
+disagreeing seed is not by itself an export fault. The control (``onnx_control=true``, the
+default) measures that floor: the PyTorch policy once more, with every executed action shifted
+by the export's largest raw difference from PyTorch (``max_raw_diff`` of the parity check,
+alternating signs over the action's coordinates), on the same seeds. Seeds on which that shifted
+policy and the unshifted one disagree are flipped by numerical noise of the export's size.
+
+Writes policy_nfe<N>.onnx, eval_onnx.md and eval_onnx.csv (seed, torch_success, onnx_success,
+and torch_shifted_success with the control) to ``eval.out`` (default
+``<checkpoint folder>/eval_onnx``); exits non-zero when the two success rates differ.
 """
 
 from __future__ import annotations
@@ -23,13 +30,17 @@ import statistics
 import sys
 import time
 from collections import Counter
+from dataclasses import replace
 from pathlib import Path
 
 import hydra
+import torch
 from omegaconf import DictConfig, OmegaConf
+from tensordict.nn import TensorDictModule, TensorDictSequential
 from utils import CONTROL_RATE_HZ, check_config, eval_task
 
 from recipes.common import deploy_classes, load_for_eval, run_cli, run_sweep
+from rfmp_rl import keys
 from rfmp_rl.envs.robosuite import ROBOSUITE_MAX_STEPS
 from rfmp_rl.eval.controller import run_controller
 from rfmp_rl.eval.parallel import evaluation_env
@@ -62,31 +73,67 @@ def run_onnx_controller(onnx_path: Path, task: DictConfig, seeds: list[int]) -> 
             "events": [(seed, e) for seed, e in rollouts.events if e.kind != "clamped"]}
 
 
+def shifted_actor(actor, shift: float):
+    """``actor`` with every executed action moved by ``shift``, the sign alternating over the
+    action's coordinates (+, -, +, ...): the control of `evaluate_onnx`."""
+    def move(action: torch.Tensor) -> torch.Tensor:
+        signs = torch.ones(action.shape[-1], dtype=action.dtype, device=action.device)
+        signs[1::2] = -1
+        return action + shift * signs
+
+    return TensorDictSequential(actor, TensorDictModule(move, in_keys=[keys.ACTION],
+                                                        out_keys=[keys.ACTION]))
+
+
+def _seeds(differ: list[int]) -> str:
+    return f" ({', '.join(map(str, differ))})" if differ else ""
+
+
 def write_report(out: Path, seeds: list[int], torch_row: dict, onnx: dict, differ: list[int],
-                 report, title: str, command: str) -> Path:
-    """eval_onnx.csv (one row per seed) and eval_onnx.md; returns the md path."""
+                 report, title: str, command: str, control: dict | None = None) -> Path:
+    """eval_onnx.csv (one row per seed) and eval_onnx.md; returns the md path. ``control``:
+    the shifted PyTorch policy's ``per_seed`` successes and its ``shift``."""
     out.mkdir(parents=True, exist_ok=True)
     torch_ok, onnx_ok = torch_row["per_seed"], onnx["per_seed"]
+    columns = [seeds, torch_ok, onnx_ok] + ([control["per_seed"]] if control else [])
     with open(out / "eval_onnx.csv", "w", newline="") as f:
         writer = csv.writer(f)
-        writer.writerow(["seed", "torch_success", "onnx_success"])
-        writer.writerows(zip(seeds, torch_ok, onnx_ok, strict=True))
+        writer.writerow(["seed", "torch_success", "onnx_success"]
+                        + (["torch_shifted_success"] if control else []))
+        writer.writerows(zip(*columns, strict=True))
     n = len(seeds)
     torch_rate, onnx_rate = sum(torch_ok) / n, sum(onnx_ok) / n
     ms = [t * 1e3 for t in onnx["latencies"]] or [float("nan")]
     kinds = Counter(e.kind for _, e in onnx["events"])
-    nfe, t_end = torch_row["nfe"], torch_row["t_end"]
+    nfe, t_end, t_reached = torch_row["nfe"], torch_row["t_end"], torch_row["t_reached"]
     seed_range = f"{seeds[0]}-{seeds[-1]}"
     lines = [
         f"## ONNX controller vs PyTorch: {title}", "", f"Command: `{command}`", "",
-        "| policy | NFE | T | success | successes | seeds |", "|---|---|---|---|---|---|",
-        f"| PyTorch (deterministic: prior mode) | {nfe} | {t_end:g} | {torch_rate:.2f} | "
-        f"{sum(torch_ok)}/{n} | {seed_range} |",
-        f"| ONNX controller (rfmp_deploy, zero noise) | {nfe} | {t_end:g} | {onnx_rate:.2f} | "
-        f"{sum(onnx_ok)}/{n} | {seed_range} |",
+        "| policy | NFE | T asked | T reached | success | successes | seeds |",
+        "|---|---|---|---|---|---|---|",
+        f"| PyTorch (deterministic: prior mode) | {nfe} | {t_end:g} | {t_reached:.2f} | "
+        f"{torch_rate:.2f} | {sum(torch_ok)}/{n} | {seed_range} |",
+        f"| ONNX controller (rfmp_deploy, zero noise) | {nfe} | {t_end:g} | {t_reached:.2f} | "
+        f"{onnx_rate:.2f} | {sum(onnx_ok)}/{n} | {seed_range} |",
+    ]
+    if control:
+        shifted = control["per_seed"]
+        lines.append(f"| control: PyTorch, actions shifted by ±{control['shift']:.2g} | {nfe} | "
+                     f"{t_end:g} | {t_reached:.2f} | {sum(shifted) / n:.2f} | "
+                     f"{sum(shifted)}/{n} | {seed_range} |")
+    lines += [
         "",
-        f"- Seeds where they disagree: {len(differ)} of {n}"
-        + (f" ({', '.join(map(str, differ))})" if differ else ""),
+        f"- Seeds where PyTorch and the ONNX controller disagree: {len(differ)} of {n}"
+        + _seeds(differ),
+    ]
+    if control:
+        flipped = [s for s, a, b in zip(seeds, torch_ok, control["per_seed"], strict=True)
+                   if a != b]
+        lines.append(
+            f"- Control: seeds where PyTorch and PyTorch with every executed action shifted by "
+            f"±{control['shift']:.2g} (the export's largest raw difference) disagree: "
+            f"{len(flipped)} of {n}{_seeds(flipped)}")
+    lines += [
         f"- Controller step latency: median {statistics.median(ms):.2f} ms, max {max(ms):.2f} ms "
         f"over {len(onnx['latencies'])} steps",
         "- Safety events (other than clamped): "
@@ -139,16 +186,26 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     onnx_rate = sum(onnx["per_seed"]) / len(seeds)
     print(f"  ONNX    NFE={nfe} (zero noise):    success {onnx_rate:.2f} "
           f"({time.perf_counter() - start:.0f} s)")
+    control = None
+    if cfg.get("onnx_control", True):
+        shift = float(report.max_raw_diff)
+        base = eval_task(ref, model)
+        (shifted,) = run_sweep(model, ref, replace(
+            base, make_actor=lambda m, n, t: shifted_actor(base.make_actor(m, n, t), shift)))
+        control = {"shift": shift, "per_seed": [int(v) for v in shifted["per_seed"]["success"]]}
+        print(f"  PyTorch NFE={nfe}, actions shifted by ±{shift:.2g}: success "
+              f"{shifted['success']:.2f}")
 
     title = (f"{task.task} {task.obs} {task.action_space}: {task.algo} "
              f"({task.model.unet_preset}, step {extra.get('step')}, "
              f"{extra.get('train_minutes', float('nan')):.0f} min training)")
     differ = [s for s, a, b in zip(seeds, torch_row["per_seed"], onnx["per_seed"], strict=True)
               if a != b]
-    md = write_report(out, seeds, torch_row, onnx, differ, report, title, command)
+    md = write_report(out, seeds, torch_row, onnx, differ, report, title, command, control)
     print(md.read_text())
     return {"torch": sum(torch_row["per_seed"]) / len(seeds), "onnx": onnx_rate,
-            "differ": differ, "md": md, "onnx_path": report.path}
+            "differ": differ, "md": md, "onnx_path": report.path,
+            "control": None if control is None else control["per_seed"]}
 
 
 @hydra.main(config_path=".", config_name="config", version_base="1.3")

@@ -50,6 +50,23 @@ def test_eval_onnx_writes_both_success_rates(recipe, tmp_path_factory, tmp_path)
     assert [r["seed"] for r in rows] == ["100000", "100001"]
     assert all(r["torch_success"] in "01" and r["onnx_success"] in "01" for r in rows)
     assert len(result["differ"]) == sum(r["torch_success"] != r["onnx_success"] for r in rows)
+    # the control: PyTorch again with its actions shifted by the export's largest difference
+    assert [int(r["torch_shifted_success"]) for r in rows] == result["control"]
+    assert "| control: PyTorch, actions shifted by ±" in md
+    assert "- Control: seeds where PyTorch and PyTorch with every executed action shifted" in md
+    assert "| NFE | T asked | T reached |" in md and "| 1 | 1 | 0.40 |" in md  # SRFMP NFE 1
+
+
+def test_shifted_actor_moves_every_action_coordinate_by_the_shift(recipe):
+    import torch
+    from tensordict import TensorDict
+    from tensordict.nn import TensorDictModule
+
+    base = TensorDictModule(lambda obs: obs * 0 + 0.5, in_keys=["observation"],
+                            out_keys=["action"])
+    actor = recipe["eval_onnx"].shifted_actor(base, 1e-3)
+    out = actor(TensorDict({"observation": torch.zeros(2, 4)}, batch_size=[2]))
+    assert torch.allclose(out["action"], torch.tensor([[0.501, 0.499, 0.501, 0.499]] * 2))
 
 
 def test_eval_onnx_missing_checkpoint_names_the_path(recipe, tmp_path):
