@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 .venv/bin/python recipes/pusht/train.py algo=cp teacher=runs/pusht/ddim_teacher_seed0/best.pt obs=state space=euclidean threads=1 optim.lr=0.0001 train.steps=2500 train.max_minutes=55 'eval.nfes=[1,3]' out_dir=runs/pusht/cp_state_seed0
