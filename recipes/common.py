@@ -527,6 +527,8 @@ class TaskEval:
         max_steps: the episode limit when ``eval.max_steps`` is null.
         num_envs: envs stepped side by side when ``eval.num_envs`` is null (None: every seed).
         paper: ``{(NFE, T): value}``: the paper's figure for the column marked ``paper=True``.
+        time_paper: ``{(NFE, T): value}``: the figures of the paper's integration-time table,
+            beside ``paper``'s in the side-by-side row where the two tables differ.
         plot: ``(field, axis label, y range)`` of eval.png, or None for no plot.
         notes: lines printed under the table.
     """
@@ -541,6 +543,7 @@ class TaskEval:
     max_steps: int | None = None
     num_envs: int | None = None
     paper: dict = field(default_factory=dict)
+    time_paper: dict = field(default_factory=dict)
     plot: tuple | None = None
     notes: list[str] = field(default_factory=list)
 
@@ -589,7 +592,8 @@ def report(rows: list[dict], out: Path, cfg: DictConfig, task: TaskEval, title: 
     """eval.md and eval.csv (and eval.png) of a sweep in ``out``; returns eval.md."""
     path = write_tables(rows, out, title=title, command=command, columns=task.columns,
                         labels=list(task.labels), paper=task.paper,
-                        time_table=cfg.eval.get("time_table") or (), notes=task.notes)
+                        time_table=cfg.eval.get("time_table") or (), time_paper=task.time_paper,
+                        notes=task.notes)
     if task.plot is not None:
         key, ylabel, ylim = task.plot
         plot_sweep(rows, out / "eval.png", key, ylabel=ylabel, title=title, ylim=ylim)

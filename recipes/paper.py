@@ -23,8 +23,9 @@ from dataclasses import dataclass, field
 __all__ = [
     "PaperTable", "PUSHT_NFE", "PUSHT_TIME", "SPHERE_PRIORS", "ROBOMIMIC_STATE",
     "ROBOMIMIC_VISION", "KITCHEN", "TRAIN_TIME", "TRAIN_TIME_TABLE", "EFFICIENCY_FIGURE",
-    "EFFICIENCY_CLAIMS", "ORIENTATION_CLAIM", "REAL_ROBOT_CLAIM", "TABLES", "pusht_euclidean",
-    "robomimic_state",
+    "EFFICIENCY_CLAIMS", "ORIENTATION_CLAIM", "REAL_ROBOT_CLAIM", "RFMP_BEYOND_T1_FIGURE",
+    "RFMP_BEYOND_T1_CLAIM", "LASA_FLOWS_FIGURE", "LASA_FLOWS_CLAIM", "TABLES", "pusht_euclidean",
+    "pusht_sphere", "robomimic_state",
 ]
 
 Setting = tuple[int, float]
@@ -219,6 +220,26 @@ REAL_ROBOT_CLAIM = ("its figure prints no numbers; its text: RFMP and SRFMP \"di
                     "jerky\" at 2 NFE; on Mug flipping both flows are \"significantly more "
                     "robust to different NFE in terms of success rate when compared to DP\"")
 
+#: RFMP integrated past t = 1 (Euclidean Push-T and robomimic Square): the paper plots curves in a
+#: figure and gives no table (caption, label).
+RFMP_BEYOND_T1_FIGURE = ("RFMP performance when extending inference time beyond t=1 on the "
+                         "Euclidean PushT and Robomimic Square tasks", "figure:rfmp_beyond_t1")
+#: What its text (Sec. "Stable Riemannian Flow Matching Policy") reads off that figure.
+RFMP_BEYOND_T1_CLAIM = (f"it gives no table; its figure \"{RFMP_BEYOND_T1_FIGURE[0]}\" plots "
+                        "curves without numbers, and its text reads: RFMP \"performance improves "
+                        "when the ODE integration horizon slightly exceeds t=1, but it worsens and "
+                        "eventually gets unstable when integrating for longer time horizons\"")
+
+#: The flows of RFM and SRFM on the L-shape LASA data projected on S^2 at t = 0, 1, 1.5 (the
+#: quickstart's setting): a figure without numbers (caption, label).
+LASA_FLOWS_FIGURE = ("Flows of the RFM (top) and SRFM (bottom) trained on the L-shape LASA dataset "
+                     "projected on the sphere manifold", "fig:lasaRfmSrfm")
+#: What its text says of that figure.
+LASA_FLOWS_CLAIM = (f"its figure \"{LASA_FLOWS_FIGURE[0]}\" plots the flows at t = 0, 1, 1.5 "
+                    "without numbers; its text: \"The RFM flow diverges from the target "
+                    "distribution at time t>1, while the SRFM flow is stable and adheres to the "
+                    "target distribution for t >= 1\"")
+
 #: Every table above by a short name (the manifest of ``recipes/paper_comparison.py`` refers to
 #: them by it).
 TABLES = {"pusht_nfe": PUSHT_NFE, "pusht_time": PUSHT_TIME, "sphere_priors": SPHERE_PRIORS,
@@ -232,6 +253,23 @@ def pusht_euclidean(algo: str) -> dict[Setting, float]:
     T 1 the NFE table's figure). ``{}`` for an algorithm the paper does not report."""
     out = dict(PUSHT_NFE.rows.get(algo, {}))
     for setting, value in PUSHT_TIME.rows.get(f"euclidean/{algo}", {}).items():
+        out.setdefault(setting, value)
+    return out
+
+
+def pusht_sphere(algo: str, prior: str) -> dict[Setting, float]:
+    """The paper's Sphere Push-T figures of ``algo`` with the sphere prior ``prior`` (``uniform``
+    | ``wrapped``; DDIM: DP's Euclidean Gaussian projected onto the sphere, whatever ``prior``):
+    its prior table at T = 1, then its integration-time table, which states no prior, at NFE 3,
+    T 1.2 and NFE 4, T 1.6. ``{}`` for an algorithm the paper does not report.
+
+    Example:
+        >>> pusht_sphere("srfmp", "uniform")[(1, 1.0)], pusht_sphere("srfmp", "wrapped")[(4, 1.6)]
+        (0.772, 0.685)
+    """
+    key = "ddim/euclidean" if algo == "ddim" else f"{algo}/{prior}"
+    out = dict(SPHERE_PRIORS.rows.get(key, {}))
+    for setting, value in PUSHT_TIME.rows.get(f"sphere/{algo}", {}).items():
         out.setdefault(setting, value)
     return out
 

@@ -45,6 +45,7 @@ from tensordict import TensorDict
 from torchrl.data import TensorDictReplayBuffer
 from torchrl.modules import MultiStepActorWrapper
 
+from recipes import paper
 from rfmp_rl import keys
 from rfmp_rl.checkpoint import load_checkpoint, save_checkpoint
 from rfmp_rl.data import DemonstrationStore
@@ -454,13 +455,23 @@ def results_table(rows: list[dict], out: Path, command: str) -> str:
 
 def claim_checks(results: dict, shape_ids: torch.Tensor, cfg: DictConfig) -> list[str]:
     """The paper's claims measured on the sweep: SRFMP stable past t = 1, RFMP not; every shape
-    reached at NFE 1; every trajectory on S^2."""
+    reached at NFE 1; every trajectory on S^2. At an NFE whose SRFMP schedule stops at the same
+    T for both end times asked (NFE 1 and 2: T 0.40 and 0.80), there is no SRFMP ratio: its two
+    rollouts are the same."""
     checks = []
     t_lo, t_hi = min(cfg.t_ends), max(cfg.t_ends)
     for nfe in cfg.nfes:
         sr_lo, sr_hi = results[("srfmp", nfe, t_lo)]["dtw"], results[("srfmp", nfe, t_hi)]["dtw"]
         rf_lo, rf_hi = results[("rfmp", nfe, t_lo)]["dtw"], results[("rfmp", nfe, t_hi)]["dtw"]
         hi, lo = (results[("srfmp", nfe, t)]["t_reached"] for t in (t_hi, t_lo))
+        rf_reached = "T {:.2f} / T {:.2f} reached".format(
+            *(results[("rfmp", nfe, t)]["t_reached"] for t in (t_hi, t_lo)))
+        rfmp = f"RFMP DTW {rf_reached} = {rf_hi / rf_lo:.3f} (grows: {rf_hi > rf_lo})"
+        if math.isclose(hi, lo):
+            checks.append(
+                f"- NFE={nfe}: SRFMP stops at T {hi:.2f} for every T asked, so there is no "
+                f"T {t_hi:g} vs T {t_lo:g} test at this NFE; {rfmp}")
+            continue
         asked = "" if math.isclose(hi, t_hi) and math.isclose(lo, t_lo) else " asked"
         checks.append(
             f"- NFE={nfe}: SRFMP DTW T={t_hi:g}/T={t_lo:g}{asked} (T {hi:.2f} / {lo:.2f} reached) "
@@ -481,6 +492,10 @@ def claim_checks(results: dict, shape_ids: torch.Tensor, cfg: DictConfig) -> lis
         f"(<= 1e-5: {worst_manifold <= 1e-5})"
     )
     return checks
+
+
+#: The paper's side of the sweep: a figure of the same setting, no numbers.
+PAPER_LINE = f"- the paper (RFM and SRFM flows on LASA shapes on S^2): {paper.LASA_FLOWS_CLAIM}"
 
 
 # ----- main ------------------------------------------------------------------------------------
@@ -524,7 +539,7 @@ def main(cfg: DictConfig) -> None:
     table = results_table(list(results.values()), out, command)
     checks = claim_checks(results, shape_ids, cfg)
     print("\n" + table + "\n")
-    print("\n".join(checks))
+    print("\n".join([*checks, PAPER_LINE]))
 
     context = one_hot(shape_ids, len(demos))
     horizon = next(iter(demos.values())).shape[1] + cfg.extra_steps
@@ -560,7 +575,8 @@ def main(cfg: DictConfig) -> None:
         gap = (onnx_trajs - trajectories[("srfmp", 1, min(cfg.t_ends))]).abs().max().item()
         lat = torch.tensor(latencies) * 1e3
         deploy_lines = [
-            f"- ONNX controller (deploy/, onnxruntime, no torch in the loop): DTW "
+            f"- ONNX controller (SRFMP, NFE 1, T {torch_score['t_reached']:.2f} reached; deploy/, "
+            f"onnxruntime, no torch in the loop): DTW "
             f"{onnx_score['dtw']:.5f} vs PyTorch {torch_score['dtw']:.5f}; final distance "
             f"{onnx_score['final']:.5f} vs {torch_score['final']:.5f}; max trajectory "
             f"difference {gap:.2e} rad",
@@ -589,6 +605,7 @@ def main(cfg: DictConfig) -> None:
         table,
         "",
         *checks,
+        PAPER_LINE,
         *deploy_lines,
         "",
         "Files: " + ", ".join(files),

@@ -8,7 +8,8 @@ The task settings (algo, obs, space, model) come from the checkpoint's stored co
 earlier version is upgraded); the ``eval.*`` fields from the command line. Writes eval.csv,
 eval.md and eval.png to ``eval.out`` (default: ``<checkpoint folder>/eval``) and prints the
 table. Scores are the paper's: maximum coverage over the episode (early stop at 95%), mean over
-seeds, beside the paper's Euclidean Push-T figures; jerk of the executed actions.
+seeds, beside the paper's Push-T figures (Sphere Push-T: its row of the run's prior;
+`utils.paper_figures`); jerk of the executed actions.
 """
 
 from __future__ import annotations

@@ -23,6 +23,7 @@ import yaml
 from recipes import paper
 from recipes.common import upgrade_config
 from rfmp_rl.eval import read_table
+from rfmp_rl.solvers import SolverConfig
 
 TASK_KEYS = ("algo", "obs", "space", "model.prior_sphere", "model.unet_preset",
              "model.down_dims", "model.horizon", "model.action_steps", "model.obs_horizon",
@@ -31,6 +32,7 @@ DEFAULTS = Path(__file__).with_name("config.yaml")
 _NFE_TABLE = f'"{paper.PUSHT_NFE.caption}" at T = 1'
 _TIME_TABLE = '"Influence of Integration Time" at NFE 3, T 1.2 and NFE 4, T 1.6'  # as printed
 _SPHERE_TABLE = f'"{paper.SPHERE_PRIORS.caption}"'
+_SPHERE_TIME_TABLE = '"Influence of Integration Time" at NFE 3, T 1 and 1.2 and NFE 4, T 1.6'
 
 
 def _figures(*rows: dict) -> dict:
@@ -56,7 +58,8 @@ def _sphere(key: str) -> dict:
 #: The paper's Push-T scores (image observations, 50 seeds) by (space, algo, sphere prior), each
 #: ``(row label, {(NFE, T asked): figure})`` (`recipes.paper`). Its two Euclidean tables disagree
 #: on SRFMP at NFE 3, T = 1 (0.851 in the NFE table, 0.862 in the integration-time table): both
-#: are given.
+#: are given. Its Sphere Push-T integration-time figures state no prior (prior ``None``: shown
+#: for every sphere run of the algorithm).
 PAPER_ROWS = {
     ("euclidean", "srfmp", None): (f"SRFMP, from images (tables {_NFE_TABLE}, {_TIME_TABLE})",
                                    _euclidean("srfmp")),
@@ -72,6 +75,12 @@ PAPER_ROWS = {
                                     _sphere("rfmp/uniform")),
     ("sphere", "rfmp", "wrapped"): (f"RFMP (Gaussian prior), from images (table {_SPHERE_TABLE})",
                                     _sphere("rfmp/wrapped")),
+    ("sphere", "srfmp", None): (
+        f"SRFMP, prior not stated, from images (table {_SPHERE_TIME_TABLE})",
+        _figures(paper.PUSHT_TIME.rows["sphere/srfmp"])),
+    ("sphere", "rfmp", None): (
+        f"RFMP, prior not stated, from images (table {_SPHERE_TIME_TABLE})",
+        _figures(paper.PUSHT_TIME.rows["sphere/rfmp"])),
     ("sphere", "ddim", None): (f"DP, Euclidean Gaussian, from images (table {_SPHERE_TABLE})",
                                _sphere("ddim/euclidean")),
 }
@@ -150,6 +159,32 @@ def _name(cfg: dict) -> str:
     return name + f", {cfg['train']['max_minutes']:g} min cap"
 
 
+def _paper_keys(cfg: dict) -> set:
+    """The `PAPER_ROWS` keys that stand beside a run: its space, algorithm and sphere prior, and
+    the paper's rows of that space and algorithm that state no prior."""
+    prior = (cfg.get("model", {}).get("prior_sphere", "uniform")
+             if cfg["space"] == "sphere" and cfg["algo"] != "ddim" else None)
+    return {(cfg["space"], cfg["algo"], prior), (cfg["space"], cfg["algo"], None)}
+
+
+def _selection(cfg: dict) -> str:
+    """The setting of the rollout-selection score: ``NFE 1, T=1`` where the solver reaches the T
+    asked, else ``NFE 1, T 1 asked, T 0.40 reached`` (SRFMP's first step ends at 1 /
+    lambda_x)."""
+    nfe, t_end = int(cfg["select"]["nfe"]), float(cfg["select"]["t_end"])
+    reached = SolverConfig(nfe=nfe, t_end=t_end).resolve(cfg["algo"]).reached(
+        float(cfg.get("loss", {}).get("lambda_x", 2.5)))
+    if abs(reached - t_end) < 1e-6:
+        return f"NFE {nfe}, T={t_end:g}"
+    return f"NFE {nfe}, T {t_end:g} asked, T {reached:.2f} reached"
+
+
+def _paper_rows(keys: set, settings: list[tuple[int, float]]) -> list[str]:
+    """The `PAPER_ROWS` of ``keys`` as rows of a table with a column per setting."""
+    return [f"| paper, {label} | " + " | ".join(figures.get(s, "-") for s in settings) + " |"
+            for key, (label, figures) in PAPER_ROWS.items() if key in keys]
+
+
 def _read(path: Path, what: str) -> str:
     if not path.is_file():
         raise FileNotFoundError(f"report.py: {path} is missing ({what})")
@@ -183,10 +218,8 @@ def main(argv: list[str] | None = None) -> str:
         runs.append((run, cfg, _name(cfg)))
     names = [name for _, _, name in runs]
     defaults = yaml.safe_load(DEFAULTS.read_text())
-    sections, summary, groups, reached = [], {}, {}, {}
-    paper_keys = {(cfg["space"], cfg["algo"], cfg.get("model", {}).get("prior_sphere", "uniform")
-                   if cfg["space"] == "sphere" and cfg["algo"] != "ddim" else None)
-                  for _, cfg, _ in runs}
+    sections, summary, groups, reached, group_keys = [], {}, {}, {}, {}
+    paper_keys = set().union(*(_paper_keys(cfg) for _, cfg, _ in runs))
     for run, cfg, name in runs:
         history = json.loads(_read(run / "history.json", "the run's validation curve"))
         by_rollout = cfg["train"].get("select_by") == "rollout"
@@ -197,7 +230,7 @@ def main(argv: list[str] | None = None) -> str:
             chosen = (f"best validation rollout score {best['rollout']:.3f} (mean max coverage "
                       f"over seeds {cfg['select']['seed_start']}-"
                       f"{cfg['select']['seed_start'] + cfg['select']['seeds'] - 1}, "
-                      f"NFE {cfg['select']['nfe']}, T={cfg['select']['t_end']:g})")
+                      f"{_selection(cfg)})")
         else:
             chosen = f"best validation loss {best['val']:.4f}"
         _read(run / "eval" / "eval.csv", "eval.py's table")
@@ -212,6 +245,7 @@ def main(argv: list[str] | None = None) -> str:
                         for r in rows if r.get("t_reached") not in (None, "")})
         summary[name] = scores
         groups.setdefault(group, []).append((run.name, cfg["seed"], scores, name))
+        group_keys.setdefault(group, set()).update(_paper_keys(cfg))
         nproc = processes(run)
         device = run_device(run, cfg)
         where = (f"on {device}" if nproc == 1 else
@@ -243,16 +277,13 @@ def main(argv: list[str] | None = None) -> str:
         head.append(f"| {name} | " + " | ".join(
             f"{scores[s]:.3f}{_reached(reached, [name], s)}" if s in scores else "-"
             for s in settings) + " |")
-    for key, (label, figures) in PAPER_ROWS.items():
-        if key in paper_keys:
-            head.append(f"| paper, {label} | " + " | ".join(figures.get(s, "-") for s in settings)
-                        + " |")
-    seeded = [g for g in groups.values() if len({seed for _, seed, *_ in g}) > 1]
+    head += _paper_rows(paper_keys, settings)
+    seeded = {k: g for k, g in groups.items() if len({seed for _, seed, *_ in g}) > 1}
     if seeded:
         head += ["", "Across training seeds (runs whose settings differ only in `seed`): the mean "
                  "of the runs' scores, then each run's score in the order of the runs column.",
                  "", "| runs (seed) | " + columns, "|---|" + "---|" * len(settings)]
-        for group in seeded:
+        for group in seeded.values():
             cells = []
             for s in settings:
                 got = [scores[s] for _, _, scores, _ in group if s in scores]
@@ -261,6 +292,7 @@ def main(argv: list[str] | None = None) -> str:
                              + _reached(reached, [n for *_, n in group], s))
             head.append("| " + ", ".join(f"{folder} ({seed})" for folder, seed, *_ in group)
                         + " | " + " | ".join(cells) + " |")
+        head += _paper_rows(set().union(*(group_keys[k] for k in seeded)), settings)
     text = "\n".join(head + [""] + sections)
     if args.notes:
         text += "\n" + args.notes.read_text()

@@ -40,6 +40,36 @@ TASK_KEYS = ("obs", "space")
 PAPER = {algo: paper.pusht_euclidean(algo) for algo in ("rfmp", "srfmp", "ddim")}
 
 
+def paper_figures(cfg: DictConfig) -> tuple[dict, dict, list[str]]:
+    """The paper's scores for a run of ``cfg``: ``(figures at (NFE, T), its integration-time
+    table's own figures, the note naming their tables)``; empty where the paper reports none
+    (Consistency Policy: it evaluates CP on robomimic only).
+
+    Euclidean: `recipes.paper.pusht_euclidean`. Sphere: the prior table's row of the run's prior
+    (DDIM: DP's Euclidean Gaussian projected onto the sphere) at T = 1, then the integration-time
+    table, which states no prior (`recipes.paper.pusht_sphere`).
+    """
+    algo, space, prior = cfg.algo, cfg.space, cfg.model.get("prior_sphere", "uniform")
+    figures = PAPER.get(algo, {}) if space == "euclidean" else paper.pusht_sphere(algo, prior)
+    if not figures:
+        return {}, {}, []
+    own = paper.PUSHT_TIME.rows.get(f"{space}/{algo}", {})
+    if space == "euclidean":
+        source = f'table "{paper.PUSHT_NFE.caption}"'
+    else:
+        row = ("DP euclidean Gaussian" if algo == "ddim" else f"{algo.upper()} sphere "
+               + {"uniform": "uniform", "wrapped": "Gaussian"}[prior])
+        source = f'table "{paper.SPHERE_PRIORS.caption}", row "{row}",'
+    note = (f"paper: the paper's {space.capitalize()} Push-T score at that setting (image "
+            f"observations, 50 seeds): {source} at T = 1")
+    if own:
+        note += (f'; table "{paper.PUSHT_TIME.caption}" at NFE 3, T 1.2 and NFE 4, T 1.6'
+                 + (" (it states no prior)" if space == "sphere" else "")
+                 + ". At NFE 3, T 1 the integration-time paper row gives both tables' figures "
+                 "where they differ (first / second)")
+    return figures, own, [note + "."]
+
+
 def check_config(cfg: DictConfig) -> None:
     check_algo(cfg)
     if cfg.obs not in ("state", "image"):
@@ -152,6 +182,7 @@ def summary(values) -> dict:
 def eval_task(cfg: DictConfig) -> TaskEval:
     """The Push-T evaluation of ``cfg``: env, actor, figures, table and the paper's scores."""
     unit = "S^2 coords/s^3" if cfg.space == "sphere" else "px/s^3"  # the actions' own units
+    figures, time_figures, notes = paper_figures(cfg)
     return TaskEval(
         env_fn=make_pusht_env,
         env_kwargs={"obs_type": cfg.obs, "space": cfg.space,
@@ -166,10 +197,9 @@ def eval_task(cfg: DictConfig) -> TaskEval:
                  Column("manifold_err", "on-S^2 err", "{:.1e}"),
                  Column("env_steps", "env steps", "{}"), Column("seconds", "s", "{:.0f}")],
         labels={"algo": cfg.algo},
-        paper=PAPER.get(cfg.algo, {}) if cfg.space == "euclidean" else {},
+        paper=figures, time_paper=time_figures,
         plot=("score", "mean max coverage", (0.0, 1.0)),
-        notes=["paper: the paper's Euclidean Push-T score at that setting (image observations, "
-               "50 seeds)."] if cfg.space == "euclidean" else [],
+        notes=notes,
     )
 
 

@@ -6,7 +6,8 @@
 Each run folder needs ``config.yaml`` and ``history.json`` (written by ``train.py``) and
 ``eval/eval.csv`` (its final evaluation, or ``eval.py``'s); the training column is read from
 them: steps, minutes, learning rate and ``loss.t0_fraction`` (the flat
-configs of earlier versions are read too).
+configs of earlier versions are read too). Where the paper reports the setting (state
+observations: `recipes.paper.ROBOMIMIC_STATE`), a cell is ours / the paper's.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 
 import yaml
 
+from recipes import paper
 from recipes.common import upgrade_config
 from rfmp_rl.eval import read_table
 
@@ -54,8 +56,11 @@ def summary(runs: list[Path]) -> str:
         actions = cfg["action_space"]
         if actions == "abs_pose":
             actions += f"/{cfg['geometry']}"
-        cells = [f"{success[n]:.2f}" + (f" (T {reached[n]:.2f} reached)"
-                                          if abs(reached.get(n, 1.0) - 1.0) > 1e-6 else "")
+        theirs = paper.robomimic_state(cfg["task"], cfg["algo"]) if cfg["obs"] == "state" else {}
+        cells = [f"{success[n]:.2f}"
+                 + (f" / {theirs[(n, 1.0)]:.3f}" if (n, 1.0) in theirs else "")
+                 + (f" (T {reached[n]:.2f} reached)"
+                    if abs(reached.get(n, 1.0) - 1.0) > 1e-6 else "")
                  if n in success else "-" for n in nfes]
         lines.append("| " + " | ".join([cfg["task"], ALGO_NAMES.get(cfg["algo"], cfg["algo"]),
                                         cfg["obs"], actions, *cells, training, f"`{run}`"]) + " |")
@@ -70,7 +75,9 @@ def main(argv: list[str] | None = None) -> None:
     table = summary(args.runs)
     command = "python recipes/robosuite/summary.py " + " ".join(str(r) for r in args.runs)
     text = (f"Success over 50 seeds (end time T = 1 asked; a cell whose solver stopped at another "
-            f"T names the T it reached) of each run's evaluated checkpoint.\n\n"
+            f"T names the T it reached) of each run's evaluated checkpoint; where the paper "
+            f"reports the setting, ours / the paper's (table \"{paper.ROBOMIMIC_STATE.caption}\", "
+            f"state observations, robomimic's human demonstrations, mean over its seeds).\n\n"
             f"Command: `{command}`\n\n{table}")
     sys.stdout.write(text)
     if args.out:

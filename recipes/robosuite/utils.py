@@ -321,7 +321,7 @@ def _notes(cfg: DictConfig) -> list[str]:
     if cfg.task in ROBOSUITE_MUG_TASKS:
         return [f"{cfg.task}: a simulated stand-in for the paper's real-robot task (its figure "
                 "of success and jerk over NFE gives no table to set beside ours)."]
-    if cfg.obs == "state":
+    if cfg.obs == "state" and PAPER.get((cfg.task, cfg.algo)):
         return ["paper: the paper's success rate at that setting (state observations, "
                 "robomimic's human demonstrations)."]
     return []

@@ -81,6 +81,13 @@ def _paper_value(paper: Paper | None, row: Mapping[str, Any]) -> float | None:
     return None
 
 
+def _paper_cell(*values: float | None) -> str:
+    """The paper's figures for one setting, ``-`` when it gives none; two tables that disagree
+    both (``0.851 / 0.862``)."""
+    texts = list(dict.fromkeys(f"{v:.3f}" for v in values if v is not None))
+    return " / ".join(texts) or "-"
+
+
 def _fields(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], paper: Paper | None
             ) -> list[str]:
     fields = [k for k in rows[0] if k != "per_seed"]
@@ -93,7 +100,8 @@ def _fields(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column], paper:
 def write_tables(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *, title: str,
                  command: str, columns: Sequence[Column], labels: Sequence[str] = (),
                  paper: Paper | None = None, time_table: Sequence[Sequence] = (),
-                 notes: Sequence[str] = (), name: str = "eval") -> Path:
+                 time_paper: Paper | None = None, notes: Sequence[str] = (),
+                 name: str = "eval") -> Path:
     """Write ``<name>.md`` and ``<name>.csv`` into ``out_dir``; returns the markdown's path.
 
     Args:
@@ -108,6 +116,9 @@ def write_tables(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *, titl
             ``paper=True``; settings the paper does not report show ``-``.
         time_table: ``[NFE, T]`` pairs shown again side by side (the paper's integration-time
             table), each cell naming its NFE and reached T.
+        time_paper: the paper's integration-time table's own figures ``{(NFE, T): value}``;
+            where one differs from ``paper``'s at the same setting, the side-by-side paper row
+            gives both (``paper`` first: ``0.851 / 0.862``).
         notes: lines printed under the table.
         name: the files' stem.
     """
@@ -152,10 +163,10 @@ def write_tables(rows: Sequence[Mapping[str, Any]], out_dir: str | Path, *, titl
                   "| | " + " | ".join(setting_label(r) for r in chosen) + " |",
                   "|---|" + "---|" * len(chosen),
                   f"| {label} | " + " | ".join(main.cell(r) for r in chosen) + " |"]
-        reported = [_paper_value(paper, r) for r in chosen]
-        if any(v is not None for v in reported):
-            lines.append("| paper | " + " | ".join("-" if v is None else f"{v:.3f}"
-                                                   for v in reported) + " |")
+        reported = [_paper_cell(_paper_value(paper, r), _paper_value(time_paper, r))
+                    for r in chosen]
+        if any(v != "-" for v in reported):
+            lines.append("| paper | " + " | ".join(reported) + " |")
     path = out_dir / f"{name}.md"
     path.write_text("\n".join(lines) + "\n")
     return path

@@ -87,3 +87,13 @@ def test_setting_label_names_the_time_reached():
 def test_plot_is_written(tmp_path):
     path = plot_sweep(ROWS, tmp_path / "eval.png", "score", ylim=(0, 1), title="t")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and path.stat().st_size > 5000
+
+
+def test_the_time_tables_paper_row_gives_both_figures_where_the_tables_differ(tmp_path):
+    md = write_tables(ROWS, tmp_path, title="t", command=COMMAND, columns=COLUMNS,
+                      paper={(3, 1.0): 0.851, (4, 1.6): 0.829},
+                      time_paper={(3, 1.0): 0.862, (4, 1.6): 0.829},
+                      time_table=[[1, 1.6], [3, 1.0], [4, 1.6]])
+    lines = md.read_text().splitlines()
+    assert "| 3 | 1 | 1.00 | 0.812 | 0.851 | - |" in lines  # the main table: `paper` only
+    assert "| paper | - | 0.851 / 0.862 | 0.829 |" in lines

@@ -86,9 +86,19 @@ def test_a_rollout_selected_run_names_its_selection_score_and_seeds(report, tmp_
     history[0]["rollout"], history[1]["rollout"] = 0.61, 0.72  # the later, higher one is kept
     (run / "history.json").write_text(json.dumps(history))
     text = report.main([str(run)])
+    # SRFMP's one selection step stops at 1 / lambda_x: the T asked and the T reached are named
     assert ("best validation rollout score 0.720 (mean max coverage over seeds 200000-200019, "
-            "NFE 1, T=1) at step 200, 2.5 min" in text)
+            "NFE 1, T 1 asked, T 0.40 reached) at step 200, 2.5 min" in text)
     assert "train.select_by=rollout" in text
+
+
+def test_a_selection_setting_whose_t_is_reached_names_it_once(report, tmp_path):
+    run = _run(tmp_path / "a", {(3, 1.0): 0.5}, algo="rfmp", train__select_by="rollout",
+               select__nfe=3)
+    history = json.loads((run / "history.json").read_text())
+    history[0]["rollout"], history[1]["rollout"] = 0.61, 0.52
+    (run / "history.json").write_text(json.dumps(history))
+    assert "seeds 200000-200019, NFE 3, T=1) at step 100" in report.main([str(run)])
 
 
 def test_runs_with_the_same_settings_keep_their_own_rows(report, tmp_path):
@@ -148,3 +158,27 @@ def test_the_papers_figures_stand_under_the_runs_at_its_settings(report, tmp_pat
     paper = [line for line in text.splitlines() if line.startswith("| paper, ")]
     assert len(paper) == 1 and paper[0].startswith("| paper, SRFMP, from images (tables ")
     assert paper[0].endswith("| 0.875 | - | 0.851 |")  # NFE 2 is not in the paper's tables
+
+
+def test_the_papers_figures_stand_under_the_mean_over_training_seeds(report, tmp_path):
+    runs = [_run(tmp_path / f"s{seed}", {(1, 1.0): 0.8 + seed / 100, (4, 1.6): 0.7}, seed=seed)
+            for seed in (0, 1)]
+    lines = report.main([str(r) for r in runs]).splitlines()
+    start = lines.index(next(line for line in lines if line.startswith("Across training seeds")))
+    seeded = lines[start:lines.index("", start + 2)]
+    assert seeded[-2].startswith("| s0 (0), s1 (1) | 0.805 (0.800, 0.810)")
+    assert seeded[-1].startswith("| paper, SRFMP, from images (tables ")
+    assert seeded[-1].endswith("| 0.875 | 0.829 |")
+
+
+def test_sphere_runs_get_the_integration_time_figures_that_state_no_prior(report, tmp_path):
+    a = _run(tmp_path / "a", {(1, 1.0): 0.7, (3, 1.0): 0.8, (3, 1.2): 0.8, (4, 1.6): 0.8},
+             space="sphere", model__prior_sphere="wrapped")
+    paper = [line for line in report.main([str(a)]).splitlines()
+             if line.startswith("| paper, ")]
+    assert len(paper) == 2
+    assert paper[0].startswith("| paper, SRFMP (Gaussian prior), from images (table ")
+    assert paper[0].endswith("| 0.707 | 0.706 | - | - |")
+    assert paper[1].startswith("| paper, SRFMP, prior not stated, from images (table "
+                               '"Influence of Integration Time"')
+    assert paper[1].endswith("| - | 0.727 | 0.736 | 0.685 |")

@@ -50,6 +50,27 @@ def test_quickstart_samples_come_from_the_store_with_hold_steps_and_shape_ids():
         assert batch["action_is_pad"][i].tolist() == [step + k > 42 for k in range(4)]
 
 
+def test_claim_checks_test_srfmp_over_t_only_where_its_schedule_reaches_two_ts():
+    qs = load_quickstart()
+    cfg = OmegaConf.create({"nfes": [1, 5], "t_ends": [1.0, 1.6], "shapes": ["LShape"],
+                            "goal_threshold": 0.05})
+    reached = {("srfmp", 1): (0.4, 0.4), ("srfmp", 5): (1.0, 1.6), ("rfmp", 1): (1.0, 1.6),
+               ("rfmp", 5): (1.0, 1.6)}
+    dtw = {("srfmp", 1): (0.0339, 0.0339), ("srfmp", 5): (0.0219, 0.0217),
+           ("rfmp", 1): (0.0634, 1.3150), ("rfmp", 5): (0.0260, 0.1325)}
+    results = {(a, n, t): {"dtw": dtw[(a, n)][i], "t_reached": reached[(a, n)][i],
+                           "on_manifold": 1e-7, "per_seed": {"final": [0.01]}}
+               for (a, n) in dtw for i, t in enumerate(cfg.t_ends)}
+    checks = qs.claim_checks(results, torch.tensor([0]), cfg)
+    # NFE 1: SRFMP's two rollouts both stop at T 0.40; a ratio of 1 would test nothing
+    assert checks[0] == ("- NFE=1: SRFMP stops at T 0.40 for every T asked, so there is no "
+                         "T 1.6 vs T 1 test at this NFE; RFMP DTW T 1.60 / T 1.00 reached = "
+                         "20.741 (grows: True)")
+    assert checks[1].startswith("- NFE=5: SRFMP DTW T=1.6/T=1 (T 1.60 / 1.00 reached) = 0.991 "
+                                "(within 10%: True); RFMP = 5.096")
+    assert "LASA" in qs.PAPER_LINE and "diverges from the target distribution" in qs.PAPER_LINE
+
+
 @pytest.mark.slow
 def test_quickstart_runs_end_to_end_with_tiny_overrides(tmp_path):
     out = tmp_path / "run"

@@ -36,9 +36,11 @@ def test_table_has_one_row_per_run_and_every_nfe(summary, tmp_path):
     out = tmp_path / "table.md"
     summary.main([str(a), str(b), "--out", str(out)])
     lines = [line for line in out.read_text().splitlines() if line.startswith("| Lift")]
-    assert lines[0].split(" | ")[1:8] == ["DDIM", "state", "delta", "0.00", "-", "0.96",
-                                          "900 steps, 7 min, lr 0.001"]
-    assert lines[1].split(" | ")[1:8] == ["SRFMP", "state", "delta", "0.98", "1.00", "-",
+    # ours / the paper's (its state-based robomimic table) at the same NFE
+    assert lines[0].split(" | ")[1:8] == ["DDIM", "state", "delta", "0.00 / 0.008", "-",
+                                          "0.96 / 0.948", "900 steps, 7 min, lr 0.001"]
+    assert lines[1].split(" | ")[1:8] == ["SRFMP", "state", "delta", "0.98 / 1.000",
+                                          "1.00 / 0.992", "-",
                                           "900 steps, 7 min, lr 0.001, t0_fraction 0.3"]
     assert "Command: `python recipes/robosuite/summary.py" in out.read_text()
 
@@ -59,4 +61,14 @@ def test_a_cell_names_the_end_time_its_solver_reached(summary, tmp_path):
     text = summary.summary([run])
     assert "| NFE 1, T=1 asked | NFE 2, T=1 asked | NFE 3, T=1 asked |" in text
     row = next(line for line in text.splitlines() if line.startswith("| Lift"))
-    assert row.split(" | ")[4:7] == ["0.98 (T 0.40 reached)", "1.00 (T 0.80 reached)", "1.00"]
+    assert row.split(" | ")[4:7] == ["0.98 / 1.000 (T 0.40 reached)",
+                                     "1.00 / 0.992 (T 0.80 reached)", "1.00 / 0.992"]
+
+
+def test_a_setting_the_paper_does_not_report_shows_ours_alone(summary, tmp_path):
+    run = _run(tmp_path / "a", "srfmp", {1: 0.5})
+    cfg = yaml.safe_load((run / "config.yaml").read_text())
+    (run / "config.yaml").write_text(yaml.safe_dump({**cfg, "task": "TwoArmTransport"}))
+    row = next(line for line in summary.summary([run]).splitlines()
+               if line.startswith("| TwoArmTransport"))
+    assert row.split(" | ")[4] == "0.50"
