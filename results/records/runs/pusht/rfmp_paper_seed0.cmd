@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 .venv/bin/python recipes/pusht/train.py algo=rfmp obs=state space=euclidean threads=1 optim.lr=0.0001 train.steps=8000 train.max_minutes=110 seed=0 out_dir=runs/pusht/rfmp_paper_seed0
