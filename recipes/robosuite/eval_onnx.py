@@ -177,7 +177,8 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     ref = OmegaConf.merge(task, {"eval": {"sampling": "deterministic", "nfes": [nfe],
                                           "t_ends": [t_end], "time_table": []}})
     seeds = list(range(int(ref.eval.seed_start), int(ref.eval.seed_start) + int(ref.eval.seeds)))
-    (row,) = run_sweep(model, ref, eval_task(ref, model))
+    base = eval_task(ref, model)
+    (row,) = run_sweep(model, ref, base)
     torch_row = {**row, "per_seed": [int(v) for v in row["per_seed"]["success"]]}
     print(f"  PyTorch NFE={nfe} (deterministic): success {torch_row['success']:.2f} "
           f"({torch_row['seconds']:.0f} s)")
@@ -189,7 +190,6 @@ def evaluate_onnx(cfg: DictConfig, command: str | None = None) -> dict:
     control = None
     if cfg.get("onnx_control", True):
         shift = float(report.max_raw_diff)
-        base = eval_task(ref, model)
         (shifted,) = run_sweep(model, ref, replace(
             base, make_actor=lambda m, n, t: shifted_actor(base.make_actor(m, n, t), shift)))
         control = {"shift": shift, "per_seed": [int(v) for v in shifted["per_seed"]["success"]]}
