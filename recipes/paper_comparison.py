@@ -14,7 +14,7 @@ What is read (run folders relative to ``--root``, default the repository root):
 
 - ``<run>/eval/eval.csv``: written by ``train.py``'s final evaluation or ``eval.py``
   (`rfmp_rl.eval.write_tables`: ``nfe``, ``t_end``, ``t_reached`` and the recipe's figure, Push-T
-  ``score``, robosuite ``success``; its first line is the command that wrote it).
+  ``score``, robosuite and Franka Kitchen ``success``; its first line is the command that wrote it).
 - ``<run>/efficiency.csv``: success of per-epoch snapshots (columns ``task``, ``algo``, ``seed``,
   ``epoch``, ``nfe``, ``success``; ``t_reached`` when recorded).
 - ``<run>.cmd`` beside the folder: the training command that made it (the manifest's otherwise).
@@ -53,7 +53,7 @@ MANIFEST = Path(__file__).with_name("paper_comparison.yaml")
 RECORDS = ROOT / "results" / "records"
 TRANSCRIBED = "transcribed from "
 #: The figure each recipe's eval.csv reports for the paper's metric.
-METRICS = {"pusht": "score", "robosuite": "success"}
+METRICS = {"pusht": "score", "robosuite": "success", "kitchen": "success"}
 EFFICIENCY_COLUMNS = ("task", "algo", "seed", "epoch", "nfe", "success")
 NOT_RUN = "not run"
 NO_EVAL = "no evaluation yet"
@@ -543,10 +543,11 @@ def build(manifest: Path = MANIFEST, root: Path = ROOT, command: str = "",
              "Each row is one policy at one NFE and end time T asked for; `T reached` is where "
              "our runs' solver stopped (SRFMP's first step ends at 1 / lambda_x = 0.4, each "
              "refinement step is at most 0.4 long), `-` while no run is evaluated. Figures: "
-             "Push-T's score (mean maximum coverage over 50 seeds), robosuite's success rate "
-             "over 50 seeds. Several training runs give their mean ± sample standard deviation "
-             "(n runs); one run gives its value alone. `not run`: the run folder does not "
-             f"exist; `{NO_EVAL}`: the folder exists without its evaluation; "
+             "Push-T's score (mean maximum coverage over 50 seeds), robosuite's and Franka "
+             "Kitchen's (all four subtasks) success rate over 50 seeds. Several training runs "
+             "give their mean ± sample standard deviation (n runs); one run gives its value "
+             "alone. `not run`: the run folder does not exist;"
+             f" `{NO_EVAL}`: the folder exists without its evaluation; "
              f"`{NOT_AT_SETTING}`: its evaluation skipped that NFE / T. [k] points to the runs "
              "and the training command under each table (a folder's `<folder>.cmd`, when "
              "present, is the command that made it).", ""]

@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 .venv/bin/python recipes/kitchen/train.py algo=rfmp threads=1 model.horizon=16 model.action_steps=8 optim.lr=0.001 train.steps=4000 train.max_minutes=75 seed=0 out_dir=runs/kitchen/rfmp_h16_lr1e3_seed0
