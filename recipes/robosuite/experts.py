@@ -27,8 +27,9 @@ A grasp that closes on nothing, or an object that does not rise with the gripper
 expert back to the approach (at most ``max_regrasps`` times).
 
 TwoArmTransport's two-arm expert is `experts_hard.TransportExpert` (`make_expert` picks the
-expert of a task); there is no scripted ToolHang expert (a robomimic ToolHang file trains
-through the recipe's ``data.path``).
+expert of a task); there is no scripted ToolHang expert (the wrench's hole has no clearance over
+the hook's end: recipes/robosuite/README.md; a robomimic ToolHang file trains through the
+recipe's ``data.path``).
 
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::

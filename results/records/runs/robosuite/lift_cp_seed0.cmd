@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=Lift algo=cp teacher=runs/robosuite/lift_ddim_teacher_seed0/best.pt threads=1 optim.lr=0.0001 train.steps=1200 train.max_minutes=18 'eval.nfes=[1,3]' seed=0 out_dir=runs/robosuite/lift_cp_seed0

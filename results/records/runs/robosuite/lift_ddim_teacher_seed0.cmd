@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=Lift algo=ddim threads=1 optim.lr=0.001 train.steps=1869 train.max_minutes=30 'eval.nfes=[1,3]' seed=0 out_dir=runs/robosuite/lift_ddim_teacher_seed0
