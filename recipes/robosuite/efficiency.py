@@ -27,6 +27,7 @@ import re
 import shlex
 import statistics
 import sys
+import textwrap
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -251,8 +252,8 @@ def plot(rows: Sequence[dict], path: Path, title: str = "") -> Path:
 
     stats = aggregate(rows)
     tasks = sorted({t for t, _ in stats}, key=lambda t: _order((t, "")))
-    fig, axes = plt.subplots(1, len(tasks), figsize=(3.6 * len(tasks), 3.2), squeeze=False,
-                             sharey=True)
+    width = max(3.6 * len(tasks), 5.0)
+    fig, axes = plt.subplots(1, len(tasks), figsize=(width, 3.4), squeeze=False, sharey=True)
     for ax, task in zip(axes[0], tasks, strict=True):
         for group in sorted((g for g in stats if g[0] == task), key=_order):
             cells = stats[group]
@@ -269,7 +270,8 @@ def plot(rows: Sequence[dict], path: Path, title: str = "") -> Path:
     axes[0][0].set_ylabel("success rate")
     axes[0][-1].legend(loc="best", fontsize=8)
     if title:
-        fig.suptitle(title, fontsize=9)
+        # about 15 characters of 9-point text per inch: wrapped, the title fits one panel
+        fig.suptitle(textwrap.fill(title, width=int(15 * width)), fontsize=9)
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
