@@ -21,11 +21,12 @@ What is read (run folders relative to ``--root``, default the repository root):
 - the epoch-time benchmark's markdown (``results/epoch_time.md``).
 
 Run folders hold checkpoints and stay out of git; their evaluation tables and commands are small.
-``--record`` copies them into ``results/records/<folder>/...`` (the folder's path under
-``--records``), and a folder that is absent is read from its record there, so the report can be
-regenerated from a clone that has none of the runs. A record may carry a second comment line
-``# transcribed from <file> ...``: its figures were copied from committed results text because
-the run folder itself was not kept; the report names that source beside the run.
+``--record`` copies them, with each run's ``config.yaml``, into ``results/records/<folder>/...``
+(the folder's path under ``--records``), and a folder that is absent is read from its record
+there, so the report can be regenerated from a clone that has none of the runs. A record may
+carry a second comment line ``# transcribed from <file> ...``: its figures were copied from
+committed results text because the run folder itself was not kept; the report names that source
+beside the run.
 
 Several training seeds of one row give their mean and sample standard deviation. A run folder
 that does not exist reads ``not run``, one without its evaluation ``no evaluation yet``: no cell
@@ -273,8 +274,9 @@ def _copy_atomic(src: Path, dst: Path) -> None:
 
 
 def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[Path]:
-    """Copy each existing run folder's evaluation table (the group's ``file``) and its
-    ``<folder>.cmd`` to the same paths under ``records``; returns the records written.
+    """Copy each existing run folder's evaluation table (the group's ``file``), its
+    ``config.yaml`` (the settings it was trained with) and its ``<folder>.cmd`` to the same paths
+    under ``records``; returns the records written.
 
     Only those files are written, each replaced atomically; nothing else under ``records`` is
     touched, so the records of runs that are absent stay as they are.
@@ -286,6 +288,7 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
             if not path.is_dir():
                 continue
             for src, rel in ((path / group.file, Path(folder) / group.file),
+                             (path / "config.yaml", Path(folder) / "config.yaml"),
                              (path.with_name(path.name + ".cmd"), Path(f"{folder}.cmd"))):
                 dst = records / rel
                 if src.is_file() and dst not in written:

@@ -106,6 +106,31 @@ def test_a_run_given_twice_or_without_snapshots_is_named(efficiency, tmp_path):
         efficiency.main([str(tmp_path), "--no-eval"])
 
 
+def test_an_absent_run_is_read_from_its_record(efficiency, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    here = _fake_run(tmp_path / "runs" / "l_s0", "Lift", "srfmp", 0, {10: 0.5})
+    records = tmp_path / "records"
+    _fake_run(records / "runs" / "l_s1", "Lift", "srfmp", 1, {10: 0.7})
+    _fake_run(records / "runs" / "l_s0", "Lift", "srfmp", 0, {10: 0.0})  # the folder wins
+    out = tmp_path / "eff.md"
+    argv = ["runs/l_s0", "runs/l_s1", "--no-eval", "--records", str(records), "--out", str(out)]
+    rows = efficiency.main(argv)
+    assert sorted((r["seed"], r["success"]) for r in rows) == [(0, 0.5), (1, 0.7)]
+    text = out.read_text()
+    assert "| `runs/l_s0` | Lift |" in text
+    assert "| `runs/l_s1` (record: `records/runs/l_s1`) | Lift |" in text  # cwd-relative
+    assert here.is_dir()
+    # a record is only read with --no-eval (it has no snapshots), and an unknown run is named
+    with pytest.raises(SystemExit):
+        efficiency.main(["runs/l_s1", "--records", str(records)])
+    with pytest.raises(SystemExit):
+        efficiency.main(["runs/l_s2", "--no-eval", "--records", str(records)])
+    # a record without the run's config.yaml cannot say how it was trained: not read
+    (records / "runs" / "l_s1" / "config.yaml").unlink()
+    with pytest.raises(SystemExit):
+        efficiency.main(["runs/l_s1", "--no-eval", "--records", str(records)])
+
+
 # ----- a tiny run: snapshots evaluated once each -----------------------------------------------
 @pytest.fixture
 def recipe():

@@ -141,13 +141,14 @@ def test_records_keep_the_report_without_the_run_folders(two_of_three, tmp_path)
     manifest, root = two_of_three
     (root / "runs" / "s1.cmd").write_text("train.py seed=1 lr=1e-3\n")
     (root / "runs" / "s0" / "best.pt").write_bytes(b"weights")  # never recorded
+    (root / "runs" / "s0" / "config.yaml").write_text("seed: 0\n")
     records = tmp_path / "records"
     keep = records / "runs" / "other" / "eval" / "eval.csv"  # a record of another run
     keep.parent.mkdir(parents=True)
     keep.write_text("# kept\n")
     written = pc.record_runs(pc.load_manifest(manifest)[0], root, records)
     assert sorted(p.relative_to(records).as_posix() for p in written) == [
-        "runs/s0/eval/eval.csv", "runs/s1.cmd", "runs/s1/eval/eval.csv"]
+        "runs/s0/config.yaml", "runs/s0/eval/eval.csv", "runs/s1.cmd", "runs/s1/eval/eval.csv"]
     assert keep.read_text() == "# kept\n"
     assert not (records / "runs" / "s0" / "best.pt").exists()
     assert not list(records.rglob("*.tmp*"))
