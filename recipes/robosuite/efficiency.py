@@ -249,8 +249,9 @@ def table(rows: Sequence[dict]) -> str:
 
 
 def plot(rows: Sequence[dict], path: Path, title: str = "") -> Path:
-    """One panel per task, one line per algorithm (mean over training seeds), the mean +- one
-    standard deviation shaded; success in [0, 1] against epochs."""
+    """One panel per task, one line per algorithm (mean over training seeds, their number in
+    the panel's legend), the mean +- one standard deviation shaded; success in [0, 1] against
+    epochs."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -266,15 +267,16 @@ def plot(rows: Sequence[dict], path: Path, title: str = "") -> Path:
             x = sorted(cells)
             mean = [cells[e]["mean"] for e in x]
             std = [0.0 if math.isnan(cells[e]["std"]) else cells[e]["std"] for e in x]
-            (line,) = ax.plot(x, mean, "o-", label=NAMES.get(group[1], group[1]))
+            n = max(cells[e]["n"] for e in x)
+            (line,) = ax.plot(x, mean, "o-", label=f"{NAMES.get(group[1], group[1])} (n={n})")
             ax.fill_between(x, [max(0.0, m - s) for m, s in zip(mean, std, strict=True)],
                             [min(1.0, m + s) for m, s in zip(mean, std, strict=True)],
                             color=line.get_color(), alpha=0.2)
         ax.set(title=task, xlabel="training epochs", ylim=(-0.02, 1.02),
                xticks=sorted({e for g in stats if g[0] == task for e in stats[g]}))
         ax.grid(alpha=0.3)
+        ax.legend(loc="best", fontsize=8)  # per panel: the number of seeds differs by task
     axes[0][0].set_ylabel("success rate")
-    axes[0][-1].legend(loc="best", fontsize=8)
     if title:
         # about 15 characters of 9-point text per inch: wrapped, the title fits one panel
         fig.suptitle(textwrap.fill(title, width=int(15 * width)), fontsize=9)

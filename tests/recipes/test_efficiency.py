@@ -92,6 +92,26 @@ def test_table_and_plot_give_the_mean_and_spread_over_training_seeds(efficiency,
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 5000
 
 
+def test_the_plot_names_how_many_training_seeds_each_line_has(efficiency, tmp_path,
+                                                              monkeypatch):
+    from matplotlib.axes import Axes
+
+    labels = []
+    plot = Axes.plot
+
+    def spy(ax, *args, **kwargs):
+        labels.append(kwargs.get("label"))
+        return plot(ax, *args, **kwargs)
+
+    monkeypatch.setattr(Axes, "plot", spy)
+    rows = [{"task": t, "algo": a, "seed": s, "epoch": 10, "success": 0.5, "t_reached": 1.0}
+            for t, a, seeds in (("Lift", "srfmp", (0, 1, 2)), ("PickPlaceCan", "srfmp", (0,)),
+                                ("PickPlaceCan", "ddim", (0, 1))) for s in seeds]
+    efficiency.plot(rows, tmp_path / "p.png")
+    # the lines in panel order, Lift first
+    assert labels == ["SRFMP (n=3)", "SRFMP (n=1)", "DDIM (n=2)"]
+
+
 def test_a_run_given_twice_or_without_snapshots_is_named(efficiency, tmp_path):
     run = _fake_run(tmp_path / "a", "Lift", "rfmp", 0, {10: 0.5})
     with pytest.raises(ValueError, match="two results for Lift rfmp seed 0 epoch 10"):
