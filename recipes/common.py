@@ -28,6 +28,8 @@ from rfmp_rl.objectives import LossConfig
 from rfmp_rl.solvers import SolverConfig
 
 ROOT = Path(__file__).resolve().parents[1]
+#: Where `recipes/paper_comparison.py --record` keeps what a report needs of each run folder.
+RECORDS = ROOT / "results" / "records"
 
 #: The algorithms, named as the library names them (`ModelConfig.algorithm`).
 ALGORITHMS = ("rfmp", "srfmp", "ddim", "cp")

@@ -47,11 +47,10 @@ from pathlib import Path
 import yaml
 
 from recipes import paper
+from recipes.common import RECORDS, ROOT
 from rfmp_rl.eval import read_table
 
-ROOT = Path(__file__).resolve().parents[1]
 MANIFEST = Path(__file__).with_name("paper_comparison.yaml")
-RECORDS = ROOT / "results" / "records"
 TRANSCRIBED = "transcribed from "
 #: The figure each recipe's eval.csv reports for the paper's metric.
 METRICS = {"pusht": "score", "robosuite": "success", "kitchen": "success"}

@@ -38,10 +38,9 @@ from pathlib import Path
 
 import yaml
 
-from recipes.common import upgrade_config
+from recipes.common import RECORDS, upgrade_config
 
 HERE = Path(__file__).resolve().parent
-RECORDS = HERE.parents[1] / "results" / "records"
 TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare")
 SHORT = {"Lift": "lift", "PickPlaceCan": "can", "NutAssemblySquare": "square"}
 ALGOS = ("rfmp", "srfmp", "ddim")
