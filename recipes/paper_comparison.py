@@ -3,6 +3,7 @@
 
     python recipes/paper_comparison.py --record --out results/paper_comparison.md
     python recipes/paper_comparison.py --manifest my_runs.yaml --root /data/rfmp_rl
+    python recipes/paper_comparison.py --todo > todo.sh   # the runs still missing, a job a line
 
 ``recipes/paper_comparison.yaml`` (the manifest) names every group of training runs (folder per
 training seed, training command) and every table: Push-T NFE sweep, integration time, Sphere
@@ -38,6 +39,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import shutil
 import statistics
 import sys
@@ -294,6 +296,53 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
                     _copy_atomic(src, dst)
                     written.append(dst)
     return written
+
+
+def _needs(command: str, folder: str) -> bool:
+    """Whether ``command`` reads something of run folder ``folder`` (a teacher's checkpoint)."""
+    return re.search(rf"(?<![\w./-]){re.escape(folder)}(?=/|\s|$)", command) is not None
+
+
+def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None) -> list[str]:
+    """The jobs that the report still lacks, one shell line each: for a run that was not run its
+    training command (then its evaluation command, when the group has one); for a run folder
+    without its evaluation its evaluation command, or a ``#`` line saying so when the group's
+    evaluation is part of training. A run whose command reads another pending run's folder (a
+    Consistency Policy student's teacher) comes after it.
+
+    Example:
+        >>> g = RunGroup.from_entry("t", {"recipe": "pusht", "folder": "runs/t{seed}",
+        ...                               "seeds": [0], "command": "train.py out=runs/t{seed}"})
+        >>> s = RunGroup.from_entry("s", {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0],
+        ...                               "command": "cp.py teacher=runs/t{seed}/best.pt"})
+        >>> todo({"s": s, "t": g}, Path("/nonexistent"))
+        ['train.py out=runs/t0', 'cp.py teacher=runs/t0/best.pt']
+    """
+    jobs: list[tuple[str, str]] = []  # (folder, line)
+    for group in groups.values():
+        for i, state in enumerate(read_group(root, group, records)):
+            evaluate = group.evaluations[i] if group.evaluations else None
+            if state.status == NOT_RUN:
+                line = group.commands[i] + (f" && {evaluate}" if evaluate else "")
+            elif state.status == NO_EVAL:
+                line = evaluate or (f"# {state.folder} exists without its {group.file}: finish "
+                                    f"its training or run it again: {group.commands[i]}")
+            else:
+                continue
+            jobs.append((state.folder, line))
+    ordered: list[tuple[str, str]] = []
+    pending = list(jobs)
+    while pending:
+        for job in pending:
+            if not any(_needs(job[1], other[0]) for other in pending if other is not job):
+                break
+        else:
+            cycle = ", ".join(folder for folder, _ in pending)
+            raise ValueError(f"paper_comparison.py: the commands of {cycle} read each other's "
+                             "folders")
+        ordered.append(job)
+        pending.remove(job)
+    return [line for _, line in ordered]
 
 
 # ----- cells -----------------------------------------------------------------------------------
@@ -579,12 +628,24 @@ def main(argv: list[str] | None = None) -> str:
                         help="first copy every existing run folder's evaluation table and "
                              ".cmd into --records")
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
+    parser.add_argument("--todo", action="store_true",
+                        help="print instead the jobs the report still lacks, one shell line "
+                             "each (training, then evaluation), teachers before their students")
     args = parser.parse_args(argv)
     if args.record and args.no_records:
         parser.error("--record and --no-records exclude each other")
+    if args.todo and (args.record or args.out):
+        parser.error("--todo prints the missing jobs only (without --record and --out)")
     argv = sys.argv[1:] if argv is None else argv
     command = " ".join(["python recipes/paper_comparison.py", *argv])
     records = None if args.no_records else args.records
+    if args.todo:
+        groups, _ = load_manifest(args.manifest)
+        lines = todo(groups, args.root, records)
+        text = "\n".join(lines) + "\n" if lines else ""
+        sys.stdout.write(text)
+        print(f"{len(lines)} jobs; run each from the repository root", file=sys.stderr)
+        return text
     if args.record:
         groups, _ = load_manifest(args.manifest)
         for path in record_runs(groups, args.root, records):

@@ -195,6 +195,52 @@ def test_main_records_then_reports(two_of_three, tmp_path):
         pc.main(["--manifest", str(manifest), "--record", "--no-records"])
 
 
+
+def test_todo_lists_the_missing_jobs_teachers_first(tmp_path, capsys):
+    root = tmp_path / "repo"
+    _eval_csv(root / "runs" / "t0", [(1, 1.0, 1.0, 0.5)])           # teacher seed 0: done
+    (root / "runs" / "e0").mkdir(parents=True)                      # trained, not evaluated
+    (root / "runs" / "p0").mkdir(parents=True)                      # no evaluate command
+    runs = {"student": {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0, 1],
+                        "command": "train.py algo=cp teacher=runs/t{seed}/best.pt seed={seed}"},
+            "teacher": {"recipe": "pusht", "folder": "runs/t{seed}", "seeds": [0, 1],
+                        "command": "train.py algo=ddim seed={seed} out_dir=runs/t{seed}"},
+            "eff": {"recipe": "robosuite", "file": "efficiency.csv", "folder": "runs/e{seed}",
+                    "seeds": [0, 1], "command": "train.py seed={seed}",
+                    "evaluate": "efficiency.py runs/e{seed}"},
+            "plain": {"recipe": "pusht", "folder": "runs/p{seed}", "seeds": [0],
+                      "command": "train.py seed={seed}"}}
+    table = _sweep([{"policy": "SRFMP", "paper": "pusht_nfe srfmp", "tuned": "teacher"}],
+                   columns={"tuned": "ours, tuned"})
+    manifest = _manifest(tmp_path, runs, [table])
+    groups, _ = pc.load_manifest(manifest)
+    jobs = pc.todo(groups, root)
+    assert jobs == [
+        "train.py algo=cp teacher=runs/t0/best.pt seed=0",       # its teacher is done
+        "train.py algo=ddim seed=1 out_dir=runs/t1",             # moved before its student
+        "train.py algo=cp teacher=runs/t1/best.pt seed=1",
+        "efficiency.py runs/e0",                                 # trained: evaluation only
+        "train.py seed=1 && efficiency.py runs/e1",
+        "# runs/p0 exists without its eval/eval.csv: finish its training or run it again: "
+        "train.py seed=0"]
+    # a folder named like the prefix of another is not a dependency
+    assert not pc._needs("train.py teacher=runs/t10/best.pt", "runs/t1")
+    assert pc._needs("train.py teacher=runs/t1/best.pt", "runs/t1")
+    # a record counts as done
+    records = tmp_path / "records"
+    _eval_csv(records / "runs" / "s1", [(1, 1.0, 1.0, 0.5)])
+    assert "train.py algo=cp teacher=runs/t1/best.pt seed=1" not in pc.todo(groups, root, records)
+    text = pc.main(["--manifest", str(manifest), "--root", str(root), "--no-records", "--todo"])
+    assert text.splitlines() == jobs and capsys.readouterr().out == text
+    with pytest.raises(SystemExit):
+        pc.main(["--manifest", str(manifest), "--todo", "--record"])
+    cyclic = {"a": {"recipe": "pusht", "folder": "runs/a", "command": "x runs/b/best.pt"},
+              "b": {"recipe": "pusht", "folder": "runs/b", "command": "x runs/a/best.pt"}}
+    table["rows"][0]["tuned"] = "a"
+    groups, _ = pc.load_manifest(_manifest(tmp_path, cyclic, [table]))
+    with pytest.raises(ValueError, match="runs/a, runs/b"):
+        pc.todo(groups, root)
+
 def _efficiency(folder: Path, seed: int, successes: dict[int, float], task="Lift",
                 algo="srfmp") -> None:
     folder.mkdir(parents=True)
