@@ -306,9 +306,10 @@ def _needs(command: str, folder: str) -> bool:
 def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None) -> list[str]:
     """The jobs that the report still lacks, one shell line each: for a run that was not run its
     training command (then its evaluation command, when the group has one); for a run folder
-    without its evaluation its evaluation command, or a ``#`` line saying so when the group's
-    evaluation is part of training. A run whose command reads another pending run's folder (a
-    Consistency Policy student's teacher) comes after it.
+    without its evaluation (stopped, or still training: leave those out) the same with
+    ``resume=<folder>``, which continues it from its ``last.pt``, or a ``#`` line when it has
+    none. A run whose command reads another pending run's folder (a Consistency Policy
+    student's teacher) comes after it.
 
     Example:
         >>> g = RunGroup.from_entry("t", {"recipe": "pusht", "folder": "runs/t{seed}",
@@ -324,9 +325,13 @@ def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None) -
             evaluate = group.evaluations[i] if group.evaluations else None
             if state.status == NOT_RUN:
                 line = group.commands[i] + (f" && {evaluate}" if evaluate else "")
+            elif state.status == NO_EVAL and (root / state.folder / "last.pt").is_file():
+                # continue it (a finished run resumes at its end, then evaluates)
+                line = (f"{group.commands[i]} resume={state.folder}"
+                        + (f" && {evaluate}" if evaluate else ""))
             elif state.status == NO_EVAL:
-                line = evaluate or (f"# {state.folder} exists without its {group.file}: finish "
-                                    f"its training or run it again: {group.commands[i]}")
+                line = (f"# {state.folder} exists without its {group.file} or a last.pt to "
+                        f"resume: move it aside, then: {group.commands[i]}")
             else:
                 continue
             jobs.append((state.folder, line))
@@ -630,7 +635,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
     parser.add_argument("--todo", action="store_true",
                         help="print instead the jobs the report still lacks, one shell line "
-                             "each (training, then evaluation), teachers before their students")
+                             "each (training, then evaluation; a stopped run resumed), teachers "
+                             "before their students")
     args = parser.parse_args(argv)
     if args.record and args.no_records:
         parser.error("--record and --no-records exclude each other")

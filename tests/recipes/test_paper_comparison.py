@@ -200,6 +200,7 @@ def test_todo_lists_the_missing_jobs_teachers_first(tmp_path, capsys):
     root = tmp_path / "repo"
     _eval_csv(root / "runs" / "t0", [(1, 1.0, 1.0, 0.5)])           # teacher seed 0: done
     (root / "runs" / "e0").mkdir(parents=True)                      # trained, not evaluated
+    (root / "runs" / "e0" / "last.pt").write_bytes(b"")
     (root / "runs" / "p0").mkdir(parents=True)                      # no evaluate command
     runs = {"student": {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0, 1],
                         "command": "train.py algo=cp teacher=runs/t{seed}/best.pt seed={seed}"},
@@ -219,10 +220,10 @@ def test_todo_lists_the_missing_jobs_teachers_first(tmp_path, capsys):
         "train.py algo=cp teacher=runs/t0/best.pt seed=0",       # its teacher is done
         "train.py algo=ddim seed=1 out_dir=runs/t1",             # moved before its student
         "train.py algo=cp teacher=runs/t1/best.pt seed=1",
-        "efficiency.py runs/e0",                                 # trained: evaluation only
+        "train.py seed=0 resume=runs/e0 && efficiency.py runs/e0",   # continued, evaluated
         "train.py seed=1 && efficiency.py runs/e1",
-        "# runs/p0 exists without its eval/eval.csv: finish its training or run it again: "
-        "train.py seed=0"]
+        "# runs/p0 exists without its eval/eval.csv or a last.pt to resume: move it aside, "
+        "then: train.py seed=0"]
     # a folder named like the prefix of another is not a dependency
     assert not pc._needs("train.py teacher=runs/t10/best.pt", "runs/t1")
     assert pc._needs("train.py teacher=runs/t1/best.pt", "runs/t1")
