@@ -8,6 +8,8 @@ metrics (`TaskEval`)."""
 
 from __future__ import annotations
 
+import os
+import shlex
 import sys
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, fields, replace
@@ -77,6 +79,49 @@ def upgrade_argv(argv: Sequence[str]) -> list[str]:
             print(f"note: {arg} is now {new}", file=sys.stderr)
         out.append(new)
     return out
+
+
+#: Environment variables that change how a recipe runs, kept with its command line.
+COMMAND_ENV = ("OMP_NUM_THREADS", "MUJOCO_GL", "CUDA_VISIBLE_DEVICES")
+#: Each run folder's command lines: the one that started it, then one per resume.
+COMMAND_FILE = "command.txt"
+
+
+def _from_root(path: str) -> str:
+    try:
+        return str(Path(path).resolve().relative_to(ROOT))
+    except ValueError:
+        return path
+
+
+def command_line(argv: Sequence[str] | None = None,
+                 environ: Mapping[str, str] | None = None) -> str:
+    """This process's command as one shell line, to run from the repository root: the
+    `COMMAND_ENV` variables that are set, ``torchrun`` with its processes per node when under it
+    (a multi-node job: its node count; the cluster's rendezvous options are not known here),
+    the interpreter and the script (relative to the repository when inside it), the arguments
+    quoted for the shell.
+
+    Example:
+        >>> command_line(["recipes/pusht/train.py", "eval.nfes=[1,3]"], {"OMP_NUM_THREADS": "1"})
+        "OMP_NUM_THREADS=1 python recipes/pusht/train.py 'eval.nfes=[1,3]'"
+        >>> command_line(["/x/train.py", "seed=1"], {"LOCAL_WORLD_SIZE": "2", "WORLD_SIZE": "4"})
+        'torchrun --nnodes=2 --nproc_per_node=2 /x/train.py seed=1'
+    """
+    this_process = argv is None
+    argv = list(sys.argv if this_process else argv)
+    environ = os.environ if environ is None else environ
+    parts = [f"{k}={shlex.quote(environ[k])}" for k in COMMAND_ENV if k in environ]
+    if "LOCAL_WORLD_SIZE" in environ:
+        local = int(environ["LOCAL_WORLD_SIZE"])
+        nodes = int(environ.get("WORLD_SIZE", local)) // local
+        parts += ["torchrun", "--standalone" if nodes == 1 else f"--nnodes={nodes}",
+                  f"--nproc_per_node={local}"]
+    else:
+        parts.append(_from_root(sys.executable) if this_process else "python")
+    parts.append(shlex.quote(_from_root(argv[0])))
+    parts += [shlex.quote(a) for a in argv[1:]]
+    return " ".join(parts)
 
 
 def run_cli(main: Callable[[], Any]) -> None:
@@ -342,10 +387,11 @@ def cp_student(model, cfg: DictConfig):
 
 
 def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str, resume=None,
-        camera_keys=None, rollout_score=None, control_rate_hz=None):
+        camera_keys=None, rollout_score=None, control_rate_hz=None, command: str | None = None):
     """Train with the library's engine (`rfmp_rl.training.Trainer`) and the recipe's settings
     (``optim``, ``train``, ``logger``). ``config.yaml`` is written once the engine has accepted
-    the settings (a refused resume writes nothing)."""
+    the settings (a refused resume writes nothing), and ``command`` (the command line that
+    started or resumed the run) is added to the run's ``command.txt``."""
     from rfmp_rl.training import LoggerConfig, OptimConfig, TrainConfig, Trainer
 
     trainer = Trainer(
@@ -359,6 +405,9 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
     if runtime.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
+        if command:
+            with open(run_dir / COMMAND_FILE, "a") as f:
+                f.write(command + "\n")
     return trainer.fit()
 
 
@@ -421,14 +470,16 @@ class RecipeTraining:
         line's overrides, then exit with `exit_code`."""
         from hydra.core.hydra_config import HydraConfig
 
-        _, result = self.run(cfg, overrides=list(HydraConfig.get().overrides.task))
+        _, result = train_run(cfg, self, list(HydraConfig.get().overrides.task),
+                              command=command_line())
         raise SystemExit(exit_code(result))
 
 
-def train_run(cfg: DictConfig, parts: RecipeTraining, overrides=None):
+def train_run(cfg: DictConfig, parts: RecipeTraining, overrides=None, command=None):
     """A recipe's training run: start (or resume) the run folder, build the data and the model,
-    train with `fit`, then, with ``eval.final_eval``, evaluate ``best.pt`` and write
-    ``<run>/eval``. Returns ``(run folder, FitResult)``."""
+    train with `fit` (``command``: the command line, kept in the run's ``command.txt``), then,
+    with ``eval.final_eval``, evaluate ``best.pt`` and write ``<run>/eval``. Returns
+    ``(run folder, FitResult)``."""
     parts.check(cfg)
     name = f"{parts.run_name(cfg)}_{datetime.now():%Y%m%d_%H%M%S}"
     fixed = fixed_settings(cfg, parts.task_keys)
@@ -442,7 +493,7 @@ def train_run(cfg: DictConfig, parts: RecipeTraining, overrides=None):
     model, rb, val_rb = build_training(cfg, runtime, parts.make_stores, parts.make_replay_buffer,
                                        parts.make_model, what)
     result = fit(model, rb, val_rb, cfg, run_dir, runtime, parts.recipe, last,
-                 **parts.fit_options(cfg))
+                 command=command, **parts.fit_options(cfg))
     if cfg.eval.final_eval and runtime.is_main and not result.interrupted:
         best, meta = eval_model(run_dir / "best.pt", cfg, runtime)
         task = parts.eval_task(cfg)

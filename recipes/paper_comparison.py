@@ -18,7 +18,8 @@ What is read (run folders relative to ``--root``, default the repository root):
   ``score``, robosuite and Franka Kitchen ``success``; its first line is the command that wrote it).
 - ``<run>/efficiency.csv``: success of per-epoch snapshots (columns ``task``, ``algo``, ``seed``,
   ``epoch``, ``nfe``, ``success``; ``t_reached`` when recorded).
-- ``<run>.cmd`` beside the folder: the training command that made it (the manifest's otherwise).
+- ``<run>.cmd`` beside the folder, else ``<run>/command.txt`` (which ``train.py`` writes): the
+  training command that made it (the manifest's otherwise).
 - the epoch-time benchmark's markdown (``results/epoch_time.md``).
 
 Run folders hold checkpoints and stay out of git; their evaluation tables and commands are small.
@@ -49,7 +50,7 @@ from pathlib import Path
 import yaml
 
 from recipes import paper
-from recipes.common import RECORDS, ROOT
+from recipes.common import COMMAND_FILE, RECORDS, ROOT
 from rfmp_rl.eval import read_table
 
 MANIFEST = Path(__file__).with_name("paper_comparison.yaml")
@@ -239,12 +240,14 @@ def read_run(root: Path, group: RunGroup, index: int, records: Path | None = Non
         path = records / folder
         state.exists = True
         state.record = _shown_path(path / group.file)
-    cmd_file = path.with_name(path.name + ".cmd")
-    if cmd_file.is_file():
-        # one command per line: a resumed run's file adds the resuming command below the first
-        state.command = "\n".join(" ".join(line.split())
-                                  for line in cmd_file.read_text().splitlines() if line.strip())
-        state.command_file = f"{folder}.cmd"
+    # one command per line: a resumed run's file adds the resuming command below the first
+    for cmd_file, shown in ((path.with_name(path.name + ".cmd"), f"{folder}.cmd"),
+                            (path / COMMAND_FILE, f"{folder}/{COMMAND_FILE}")):
+        if cmd_file.is_file():
+            state.command = "\n".join(" ".join(line.split()) for line in
+                                      cmd_file.read_text().splitlines() if line.strip())
+            state.command_file = shown
+            break
     if not state.exists:
         return state
     table = state.table_path = path / group.file
@@ -276,8 +279,9 @@ def _copy_atomic(src: Path, dst: Path) -> None:
 
 def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[Path]:
     """Copy each existing run folder's evaluation table (the group's ``file``), its
-    ``config.yaml`` (the settings it was trained with) and its ``<folder>.cmd`` to the same paths
-    under ``records``; returns the records written.
+    ``config.yaml`` (the settings it was trained with), its ``command.txt`` (the command lines
+    that trained it) and its ``<folder>.cmd`` to the same paths under ``records``; returns the
+    records written.
 
     Only those files are written, each replaced atomically; nothing else under ``records`` is
     touched, so the records of runs that are absent stay as they are.
@@ -290,6 +294,7 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
                 continue
             for src, rel in ((path / group.file, Path(folder) / group.file),
                              (path / "config.yaml", Path(folder) / "config.yaml"),
+                             (path / COMMAND_FILE, Path(folder) / COMMAND_FILE),
                              (path.with_name(path.name + ".cmd"), Path(f"{folder}.cmd"))):
                 dst = records / rel
                 if src.is_file() and dst not in written:
@@ -605,8 +610,8 @@ def build(manifest: Path = MANIFEST, root: Path = ROOT, command: str = "",
              "alone. `not run`: the run folder does not exist;"
              f" `{NO_EVAL}`: the folder exists without its evaluation; "
              f"`{NOT_AT_SETTING}`: its evaluation skipped that NFE / T. [k] points to the runs "
-             "and the training command under each table (a folder's `<folder>.cmd`, when "
-             "present, is the command that made it).", ""]
+             "and the training command under each table (a folder's `<folder>.cmd`, or else "
+             "its `command.txt`, when present, is the command that made it).", ""]
     for table in tables:
         kind = table.get("kind", "sweep")
         if kind == "sweep":
@@ -630,8 +635,8 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--no-records", action="store_true",
                         help="read only the run folders")
     parser.add_argument("--record", action="store_true",
-                        help="first copy every existing run folder's evaluation table and "
-                             ".cmd into --records")
+                        help="first copy every existing run folder's evaluation table, "
+                             "config.yaml, command.txt and .cmd into --records")
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
     parser.add_argument("--todo", action="store_true",
                         help="print instead the jobs the report still lacks, one shell line "

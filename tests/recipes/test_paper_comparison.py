@@ -85,6 +85,13 @@ def test_every_run_of_a_row_carries_its_command(two_of_three):
     s1 = _line(text, "  - `runs/s1` (seed 1)")[0]  # the .cmd beside the folder wins
     assert s1.endswith("training (from `runs/s1.cmd`): `OMP_NUM_THREADS=1 .venv/bin/python "
                        "recipes/pusht/train.py algo=srfmp seed=1 lr=1e-3`")
+    # without a .cmd, the command.txt that train.py writes into the folder
+    (root / "runs" / "s0" / "command.txt").write_text(
+        "OMP_NUM_THREADS=1 .venv/bin/python recipes/pusht/train.py seed=0 out_dir=runs/s0\n")
+    text = pc.build(manifest, root, "python recipes/paper_comparison.py")
+    assert _line(text, "  - `runs/s0` (seed 0)")[0].endswith(
+        "training (from `runs/s0/command.txt`): `OMP_NUM_THREADS=1 .venv/bin/python "
+        "recipes/pusht/train.py seed=0 out_dir=runs/s0`")
     # a resumed run's file holds its commands one per line, each quoted on its own
     (root / "runs" / "s1.cmd").write_text("train.py seed=1 train.max_minutes=60\n"
                                           "train.py resume=runs/s1 train.max_minutes=600\n")
@@ -190,6 +197,11 @@ def test_main_records_then_reports(two_of_three, tmp_path):
              "--record", "--out", str(out)])
     assert (records / "runs" / "s0" / "eval" / "eval.csv").read_text() == (
         root / "runs" / "s0" / "eval" / "eval.csv").read_text()
+    assert not (records / "runs" / "s0" / "command.txt").exists()  # the folder has none
+    (root / "runs" / "s0" / "command.txt").write_text("train.py seed=0\n")
+    pc.main(["--manifest", str(manifest), "--root", str(root), "--records", str(records),
+             "--record"])
+    assert (records / "runs" / "s0" / "command.txt").read_text() == "train.py seed=0\n"
     assert "its record under" in out.read_text().splitlines()[2]
     with pytest.raises(SystemExit):
         pc.main(["--manifest", str(manifest), "--record", "--no-records"])

@@ -263,3 +263,8 @@ def test_torchrun_sigterm_saves_last_pt_and_the_run_resumes(tmp_path):
     done = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
     assert torch.load(run / "last.pt", weights_only=False)["training_state"]["step"] == step + 3
+    # the run keeps both command lines, each runnable from the repository root
+    first, resumed = (run / "command.txt").read_text().splitlines()
+    assert first.startswith("OMP_NUM_THREADS=1 torchrun --standalone --nproc_per_node=2 "
+                            "recipes/pusht/train.py ") and f"out_dir={run}" in first
+    assert resumed.endswith(f"recipes/pusht/train.py resume={run} train.steps={step + 3}")
