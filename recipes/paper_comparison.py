@@ -278,7 +278,7 @@ def _copy_atomic(src: Path, dst: Path) -> None:
 
 
 def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[Path]:
-    """Copy each existing run folder's evaluation table (the group's ``file``), its
+    """Copy each evaluated run folder's evaluation table (the group's ``file``), its
     ``config.yaml`` (the settings it was trained with), its ``command.txt`` (the command lines
     that trained it) and its ``<folder>.cmd`` to the same paths under ``records``; returns the
     records written.
@@ -290,7 +290,7 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
     for group in groups.values():
         for folder in group.folders:
             path = root / folder
-            if not path.is_dir():
+            if not (path / group.file).is_file():  # absent, or not evaluated yet
                 continue
             for src, rel in ((path / group.file, Path(folder) / group.file),
                              (path / "config.yaml", Path(folder) / "config.yaml"),

@@ -149,6 +149,9 @@ def test_records_keep_the_report_without_the_run_folders(two_of_three, tmp_path)
     (root / "runs" / "s1.cmd").write_text("train.py seed=1 lr=1e-3\n")
     (root / "runs" / "s0" / "best.pt").write_bytes(b"weights")  # never recorded
     (root / "runs" / "s0" / "config.yaml").write_text("seed: 0\n")
+    (root / "runs" / "s2").mkdir()  # still training: nothing of it is recorded
+    (root / "runs" / "s2" / "config.yaml").write_text("seed: 2\n")
+    (root / "runs" / "s2.cmd").write_text("train.py seed=2\n")
     records = tmp_path / "records"
     keep = records / "runs" / "other" / "eval" / "eval.csv"  # a record of another run
     keep.parent.mkdir(parents=True)
