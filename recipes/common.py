@@ -87,39 +87,52 @@ COMMAND_ENV = ("OMP_NUM_THREADS", "MUJOCO_GL", "CUDA_VISIBLE_DEVICES")
 COMMAND_FILE = "command.txt"
 
 
-def _from_root(path: str) -> str:
-    try:
-        return str(Path(path).resolve().relative_to(ROOT))
-    except ValueError:
-        return path
+def _shown(path: str, cwd: Path) -> str:
+    """``path`` (as given in ``cwd``) for a command line run in ``cwd``: relative to the
+    repository when ``cwd`` is its root and the path is inside it, absolute otherwise (symbolic
+    links kept: a virtual environment's interpreter stays in its ``bin``)."""
+    absolute = Path(os.path.abspath(os.path.join(cwd, path)))
+    if cwd == ROOT and absolute.is_relative_to(ROOT):
+        return str(absolute.relative_to(ROOT))
+    return str(absolute)
 
 
-def command_line(argv: Sequence[str] | None = None,
-                 environ: Mapping[str, str] | None = None) -> str:
-    """This process's command as one shell line, to run from the repository root: the
-    `COMMAND_ENV` variables that are set, ``torchrun`` with its processes per node when under it
-    (a multi-node job: its node count; the cluster's rendezvous options are not known here),
-    the interpreter and the script (relative to the repository when inside it), the arguments
-    quoted for the shell.
+def command_line(argv: Sequence[str] | None = None, environ: Mapping[str, str] | None = None,
+                 cwd: str | Path | None = None) -> str:
+    """This process's command as one shell line (or ``argv`` with ``environ``, run in ``cwd``):
+    ``cd <cwd> &&`` unless it ran in the repository root, the `COMMAND_ENV` variables that are
+    set, ``torchrun`` with its processes per node when under it (several nodes: their count;
+    the cluster's rendezvous options are not known here), the interpreter and the script, the
+    arguments quoted for the shell.
 
     Example:
-        >>> command_line(["recipes/pusht/train.py", "eval.nfes=[1,3]"], {"OMP_NUM_THREADS": "1"})
+        >>> command_line(["recipes/pusht/train.py", "eval.nfes=[1,3]"], {"OMP_NUM_THREADS": "1"},
+        ...              cwd=ROOT)
         "OMP_NUM_THREADS=1 python recipes/pusht/train.py 'eval.nfes=[1,3]'"
-        >>> command_line(["/x/train.py", "seed=1"], {"LOCAL_WORLD_SIZE": "2", "WORLD_SIZE": "4"})
+        >>> command_line(["/x/train.py", "seed=1"], {"LOCAL_WORLD_SIZE": "2", "WORLD_SIZE": "4",
+        ...                                         "GROUP_WORLD_SIZE": "2"}, cwd=ROOT)
         'torchrun --nnodes=2 --nproc_per_node=2 /x/train.py seed=1'
+        >>> command_line(["train.py", "out_dir=runs/x"], {}, cwd="/tmp")
+        'cd /tmp && python /tmp/train.py out_dir=runs/x'
     """
     this_process = argv is None
     argv = list(sys.argv if this_process else argv)
     environ = os.environ if environ is None else environ
-    parts = [f"{k}={shlex.quote(environ[k])}" for k in COMMAND_ENV if k in environ]
+    cwd = Path(os.path.abspath(os.getcwd() if cwd is None else cwd))
+    parts = [] if cwd == ROOT else ["cd", shlex.quote(str(cwd)), "&&"]
+    parts += [f"{k}={shlex.quote(environ[k])}" for k in COMMAND_ENV if k in environ]
+    python = _shown(sys.executable, cwd) if this_process else "python"
     if "LOCAL_WORLD_SIZE" in environ:
         local = int(environ["LOCAL_WORLD_SIZE"])
-        nodes = int(environ.get("WORLD_SIZE", local)) // local
-        parts += ["torchrun", "--standalone" if nodes == 1 else f"--nnodes={nodes}",
+        nodes = int(environ.get("GROUP_WORLD_SIZE") or
+                    -(-int(environ.get("WORLD_SIZE", local)) // local))
+        torchrun = Path(sys.executable).with_name("torchrun")
+        parts += [_shown(str(torchrun), cwd) if this_process and torchrun.is_file()
+                  else "torchrun", "--standalone" if nodes == 1 else f"--nnodes={nodes}",
                   f"--nproc_per_node={local}"]
     else:
-        parts.append(_from_root(sys.executable) if this_process else "python")
-    parts.append(shlex.quote(_from_root(argv[0])))
+        parts.append(shlex.quote(python))
+    parts.append(shlex.quote(_shown(argv[0], cwd)))
     parts += [shlex.quote(a) for a in argv[1:]]
     return " ".join(parts)
 
@@ -405,8 +418,8 @@ def fit(model, rb, val_rb, cfg: DictConfig, run_dir: Path, runtime, recipe: str,
     if runtime.is_main:
         run_dir.mkdir(parents=True, exist_ok=True)
         (run_dir / "config.yaml").write_text(OmegaConf.to_yaml(cfg))
-        if command:
-            with open(run_dir / COMMAND_FILE, "a") as f:
+        if command:  # a fresh run starts the file, a resumed one adds its line
+            with open(run_dir / COMMAND_FILE, "a" if resume is not None else "w") as f:
                 f.write(command + "\n")
     return trainer.fit()
 

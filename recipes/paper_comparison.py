@@ -303,56 +303,119 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
     return written
 
 
+#: A run folder written to this recently may still be training: `todo` comments its job out.
+RECENT_MINUTES = 15
+
+
 def _needs(command: str, folder: str) -> bool:
-    """Whether ``command`` reads something of run folder ``folder`` (a teacher's checkpoint)."""
-    return re.search(rf"(?<![\w./-]){re.escape(folder)}(?=/|\s|$)", command) is not None
+    """Whether ``command`` reads something of run folder ``folder`` (a teacher's checkpoint).
+
+    Example:
+        >>> [_needs(c, "runs/t1") for c in ("x teacher=runs/t1/best.pt", "x t='./runs/t1'",
+        ...                                 "x teacher=runs/t10/best.pt", "x runs/t1x")]
+        [True, True, False, False]
+    """
+    pattern = rf"(?<![\w./-])(?:\./)?{re.escape(folder)}(?=[/\s'\"]|$)"
+    return re.search(pattern, command) is not None
 
 
-def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None) -> list[str]:
-    """The jobs that the report still lacks, one shell line each: for a run that was not run its
-    training command (then its evaluation command, when the group has one); for a run folder
-    without its evaluation (stopped, or still training: leave those out) the same with
-    ``resume=<folder>``, which continues it from its ``last.pt``, or a ``#`` line when it has
-    none. A run whose command reads another pending run's folder (a Consistency Policy
-    student's teacher) comes after it.
+def _minutes_since_written(folder: Path, now: float) -> float:
+    """Minutes since anything under ``folder`` was last written."""
+    newest = max((p.stat().st_mtime for p in folder.rglob("*") if p.is_file()),
+                 default=folder.stat().st_mtime)
+    return (now - newest) / 60
+
+
+def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None,
+         now: float | None = None) -> list[str]:
+    """The jobs that the report still lacks, one shell line each, to run from the repository
+    root:
+
+    - a run not run: its training command (then its evaluation command, when the group has
+      one); a command that does not name its folder is a ``#`` line (its run would not be
+      found);
+    - a run folder without its evaluation: the same with ``resume=<folder>``, which continues
+      it from its ``last.pt`` (a ``#`` line without one); a folder written to in the last
+      `RECENT_MINUTES` minutes may still be training, so its line is a ``#`` line too;
+    - a run that another job reads (a Consistency Policy student's teacher) but whose folder
+      is absent, kept only as a record: trained again, since records keep no checkpoints.
+
+    A folder that several groups name is one job (the first group's). A job whose command reads
+    another job's folder comes after it.
 
     Example:
         >>> g = RunGroup.from_entry("t", {"recipe": "pusht", "folder": "runs/t{seed}",
         ...                               "seeds": [0], "command": "train.py out=runs/t{seed}"})
         >>> s = RunGroup.from_entry("s", {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0],
-        ...                               "command": "cp.py teacher=runs/t{seed}/best.pt"})
+        ...                               "command": "cp.py teacher=runs/t{seed}/best.pt "
+        ...                                          "out=runs/s{seed}"})
         >>> todo({"s": s, "t": g}, Path("/nonexistent"))
-        ['train.py out=runs/t0', 'cp.py teacher=runs/t0/best.pt']
+        ['train.py out=runs/t0', 'cp.py teacher=runs/t0/best.pt out=runs/s0']
     """
-    jobs: list[tuple[str, str]] = []  # (folder, line)
+    import time
+
+    now = time.time() if now is None else now
+    found: dict[str, tuple[RunGroup, int, RunState]] = {}
     for group in groups.values():
         for i, state in enumerate(read_group(root, group, records)):
+            found.setdefault(state.folder, (group, i, state))
+
+    def fresh(group: RunGroup, i: int) -> str:
+        evaluate = group.evaluations[i] if group.evaluations else None
+        return group.commands[i] + (f" && {evaluate}" if evaluate else "")
+
+    jobs: dict[str, str] = {}
+    for folder, (group, i, state) in found.items():
+        if state.status == NOT_RUN and not _needs(group.commands[i], folder):
+            jobs[folder] = (f"# {folder}: its command does not name the folder, so its run would "
+                            f"not be found; give it out_dir={folder}: {group.commands[i]}")
+        elif state.status == NOT_RUN:
+            jobs[folder] = fresh(group, i)
+        elif state.status == NO_EVAL and (root / folder / "last.pt").is_file():
+            # continue it (a finished run resumes at its end, then evaluates)
             evaluate = group.evaluations[i] if group.evaluations else None
-            if state.status == NOT_RUN:
-                line = group.commands[i] + (f" && {evaluate}" if evaluate else "")
-            elif state.status == NO_EVAL and (root / state.folder / "last.pt").is_file():
-                # continue it (a finished run resumes at its end, then evaluates)
-                line = (f"{group.commands[i]} resume={state.folder}"
-                        + (f" && {evaluate}" if evaluate else ""))
-            elif state.status == NO_EVAL:
-                line = (f"# {state.folder} exists without its {group.file} or a last.pt to "
-                        f"resume: move it aside, then: {group.commands[i]}")
-            else:
-                continue
-            jobs.append((state.folder, line))
-    ordered: list[tuple[str, str]] = []
-    pending = list(jobs)
-    while pending:
-        for job in pending:
-            if not any(_needs(job[1], other[0]) for other in pending if other is not job):
-                break
-        else:
-            cycle = ", ".join(folder for folder, _ in pending)
-            raise ValueError(f"paper_comparison.py: the commands of {cycle} read each other's "
+            line = (f"{group.commands[i]} resume={folder}"
+                    + (f" && {evaluate}" if evaluate else ""))
+            minutes = _minutes_since_written(root / folder, now)
+            if minutes < RECENT_MINUTES:
+                line = (f"# {folder} was written to {minutes:.0f} min ago and may still be "
+                        f"training; once it has stopped: {line}")
+            jobs[folder] = line
+        elif state.status == NO_EVAL:
+            jobs[folder] = (f"# {folder} exists without its {group.file} or a last.pt to "
+                            f"resume: move it aside, then: {group.commands[i]}")
+    # a pending job that reads a folder kept only as a record needs that run trained again
+    notes: dict[str, str] = {}
+    grown = True
+    while grown:
+        grown = False
+        for folder, line in list(jobs.items()):
+            for other, (group, i, _) in found.items():
+                if other not in jobs and not (root / other).is_dir() and _needs(line, other):
+                    jobs[other] = fresh(group, i)
+                    notes[other] = (f"  # again: {other} is kept only as a record, and "
+                                    f"{folder} reads it")
+                    grown = True
+    ordered: list[str] = []
+    placed: set[str] = set()
+
+    def place(folder: str, chain: tuple[str, ...]) -> None:
+        # depth first: what a job reads is placed right before it
+        if folder in placed:
+            return
+        if folder in chain:
+            raise ValueError("paper_comparison.py: the commands of "
+                             + ", ".join(chain[chain.index(folder):]) + " read each other's "
                              "folders")
-        ordered.append(job)
-        pending.remove(job)
-    return [line for _, line in ordered]
+        for other in jobs:
+            if other != folder and _needs(jobs[folder], other):
+                place(other, (*chain, folder))
+        placed.add(folder)
+        ordered.append(jobs[folder] + notes.get(folder, ""))
+
+    for folder in jobs:
+        place(folder, ())
+    return ordered
 
 
 # ----- cells -----------------------------------------------------------------------------------
@@ -640,8 +703,9 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
     parser.add_argument("--todo", action="store_true",
                         help="print instead the jobs the report still lacks, one shell line "
-                             "each (training, then evaluation; a stopped run resumed), teachers "
-                             "before their students")
+                             "each (training, then evaluation; a stopped run resumed; a run "
+                             "that may still be training commented out), teachers before "
+                             "their students")
     args = parser.parse_args(argv)
     if args.record and args.no_records:
         parser.error("--record and --no-records exclude each other")

@@ -4,6 +4,8 @@ name."""
 
 from __future__ import annotations
 
+import os
+
 import pytest
 from omegaconf import OmegaConf
 from recipe_loader import ROOT, compose  # noqa: F401  (puts this checkout's recipes/ first)
@@ -112,3 +114,28 @@ def test_tau_max_for_an_srfmp_checkpoint_without_one(make_tiny_model, tmp_path):
         common.set_tau_max(model, "trained", None, tmp_path / "best.pt")
     with pytest.raises(SystemExit, match="applies to SRFMP checkpoints.*holds rfmp"):
         common.set_tau_max(make_tiny_model("rfmp"), "trained", loss, tmp_path / "best.pt")
+
+
+def test_command_line_is_runnable_from_the_repository_root(tmp_path):
+    line = common.command_line(["recipes/pusht/train.py", "eval.nfes=[1,3]", "a=b c"],
+                               {"OMP_NUM_THREADS": "1", "MUJOCO_GL": "egl", "HOME": "/x"},
+                               cwd=ROOT)
+    assert line == ("OMP_NUM_THREADS=1 MUJOCO_GL=egl python recipes/pusht/train.py "
+                    "'eval.nfes=[1,3]' 'a=b c'")
+    # an absolute script inside the checkout is shown from the root
+    assert common.command_line([str(ROOT / "recipes/pusht/train.py")], {}, cwd=ROOT) == (
+        "python recipes/pusht/train.py")
+    # launched elsewhere, the line goes there first (relative out_dir= stays right)
+    assert common.command_line(["train.py", "out_dir=runs/x"], {}, cwd=tmp_path) == (
+        f"cd {tmp_path} && python {tmp_path / 'train.py'} out_dir=runs/x")
+    # torchrun: one node is --standalone; several give their count (torchrun's node count)
+    one = {"LOCAL_WORLD_SIZE": "2", "WORLD_SIZE": "2", "GROUP_WORLD_SIZE": "1"}
+    assert common.command_line(["recipes/pusht/train.py"], one, cwd=ROOT) == (
+        "torchrun --standalone --nproc_per_node=2 recipes/pusht/train.py")
+    uneven = {"LOCAL_WORLD_SIZE": "2", "WORLD_SIZE": "3"}
+    assert common.command_line(["t.py"], uneven, cwd=ROOT).startswith(
+        "torchrun --nnodes=2 --nproc_per_node=2 ")
+    # this process: the interpreter as launched (a virtual environment's stays in its bin)
+    import sys
+    mine = common.command_line().split()
+    assert {os.path.relpath(sys.executable, ROOT), sys.executable} & set(mine), mine

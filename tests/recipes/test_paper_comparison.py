@@ -5,6 +5,7 @@ recipes' own paper columns."""
 
 from __future__ import annotations
 
+import shutil
 from pathlib import Path
 
 import pytest
@@ -216,46 +217,69 @@ def test_todo_lists_the_missing_jobs_teachers_first(tmp_path, capsys):
     _eval_csv(root / "runs" / "t0", [(1, 1.0, 1.0, 0.5)])           # teacher seed 0: done
     (root / "runs" / "e0").mkdir(parents=True)                      # trained, not evaluated
     (root / "runs" / "e0" / "last.pt").write_bytes(b"")
-    (root / "runs" / "p0").mkdir(parents=True)                      # no evaluate command
+    (root / "runs" / "p0").mkdir(parents=True)                      # nothing to resume
     runs = {"student": {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0, 1],
-                        "command": "train.py algo=cp teacher=runs/t{seed}/best.pt seed={seed}"},
+                        "command": "train.py algo=cp teacher=runs/t{seed}/best.pt "
+                                   "out_dir=runs/s{seed}"},
             "teacher": {"recipe": "pusht", "folder": "runs/t{seed}", "seeds": [0, 1],
-                        "command": "train.py algo=ddim seed={seed} out_dir=runs/t{seed}"},
+                        "command": "train.py algo=ddim out_dir=runs/t{seed}"},
             "eff": {"recipe": "robosuite", "file": "efficiency.csv", "folder": "runs/e{seed}",
-                    "seeds": [0, 1], "command": "train.py seed={seed}",
+                    "seeds": [0, 1], "command": "train.py out_dir=runs/e{seed}",
                     "evaluate": "efficiency.py runs/e{seed}"},
             "plain": {"recipe": "pusht", "folder": "runs/p{seed}", "seeds": [0],
-                      "command": "train.py seed={seed}"}}
+                      "command": "train.py out_dir=runs/p{seed}"},
+            "same_folder": {"recipe": "pusht", "folder": "runs/t{seed}", "seeds": [1],
+                            "command": "train.py algo=ddim out_dir=runs/t{seed}"},
+            "unnamed": {"recipe": "pusht", "folder": "runs/u", "command": "train.py seed=3"}}
     table = _sweep([{"policy": "SRFMP", "paper": "pusht_nfe srfmp", "tuned": "teacher"}],
                    columns={"tuned": "ours, tuned"})
     manifest = _manifest(tmp_path, runs, [table])
     groups, _ = pc.load_manifest(manifest)
-    jobs = pc.todo(groups, root)
+    later = (root / "runs" / "e0" / "last.pt").stat().st_mtime + 3600
+    jobs = pc.todo(groups, root, now=later)
     assert jobs == [
-        "train.py algo=cp teacher=runs/t0/best.pt seed=0",       # its teacher is done
-        "train.py algo=ddim seed=1 out_dir=runs/t1",             # moved before its student
-        "train.py algo=cp teacher=runs/t1/best.pt seed=1",
-        "train.py seed=0 resume=runs/e0 && efficiency.py runs/e0",   # continued, evaluated
-        "train.py seed=1 && efficiency.py runs/e1",
+        "train.py algo=cp teacher=runs/t0/best.pt out_dir=runs/s0",  # its teacher is done
+        "train.py algo=ddim out_dir=runs/t1",       # before its student; one job for 2 groups
+        "train.py algo=cp teacher=runs/t1/best.pt out_dir=runs/s1",
+        "train.py out_dir=runs/e0 resume=runs/e0 && efficiency.py runs/e0",  # continued
+        "train.py out_dir=runs/e1 && efficiency.py runs/e1",
         "# runs/p0 exists without its eval/eval.csv or a last.pt to resume: move it aside, "
-        "then: train.py seed=0"]
-    # a folder named like the prefix of another is not a dependency
-    assert not pc._needs("train.py teacher=runs/t10/best.pt", "runs/t1")
-    assert pc._needs("train.py teacher=runs/t1/best.pt", "runs/t1")
-    # a record counts as done
+        "then: train.py out_dir=runs/p0",
+        "# runs/u: its command does not name the folder, so its run would not be found; give "
+        "it out_dir=runs/u: train.py seed=3"]
+    # a folder written to a minute ago may still be training: its job is commented out
+    soon = pc.todo(groups, root, now=later - 3600 + 60)
+    assert soon[3] == ("# runs/e0 was written to 1 min ago and may still be training; once it "
+                       "has stopped: train.py out_dir=runs/e0 resume=runs/e0 && efficiency.py "
+                       "runs/e0")
+    # a record counts as done, but a teacher kept only as a record is trained again
     records = tmp_path / "records"
     _eval_csv(records / "runs" / "s1", [(1, 1.0, 1.0, 0.5)])
-    assert "train.py algo=cp teacher=runs/t1/best.pt seed=1" not in pc.todo(groups, root, records)
+    _eval_csv(records / "runs" / "t1", [(1, 1.0, 1.0, 0.5)])
+    assert not any("runs/s1" in j or "out_dir=runs/t1" in j
+                   for j in pc.todo(groups, root, records, now=later))
+    shutil.rmtree(records / "runs" / "s1")
+    again = pc.todo(groups, root, records, now=later)
+    assert again[:3] == [
+        "train.py algo=cp teacher=runs/t0/best.pt out_dir=runs/s0",
+        "train.py algo=ddim out_dir=runs/t1  # again: runs/t1 is kept only as a record, and "
+        "runs/s1 reads it",
+        "train.py algo=cp teacher=runs/t1/best.pt out_dir=runs/s1"]
+    # a dependency is a folder named as a path, not a prefix of another name
+    assert not pc._needs("train.py teacher=runs/t10/best.pt", "runs/t1")
+    assert pc._needs("train.py teacher='./runs/t1/best.pt'", "runs/t1")
+    assert pc._needs('train.py teacher="runs/t1"', "runs/t1")
     text = pc.main(["--manifest", str(manifest), "--root", str(root), "--no-records", "--todo"])
-    assert text.splitlines() == jobs and capsys.readouterr().out == text
+    assert len(text.splitlines()) == len(jobs) and capsys.readouterr().out == text
     with pytest.raises(SystemExit):
         pc.main(["--manifest", str(manifest), "--todo", "--record"])
-    cyclic = {"a": {"recipe": "pusht", "folder": "runs/a", "command": "x runs/b/best.pt"},
-              "b": {"recipe": "pusht", "folder": "runs/b", "command": "x runs/a/best.pt"}}
+    cyclic = {"a": {"recipe": "pusht", "folder": "runs/a", "command": "x runs/b/best.pt runs/a"},
+              "b": {"recipe": "pusht", "folder": "runs/b", "command": "x runs/a/best.pt runs/b"}}
     table["rows"][0]["tuned"] = "a"
     groups, _ = pc.load_manifest(_manifest(tmp_path, cyclic, [table]))
     with pytest.raises(ValueError, match="runs/a, runs/b"):
         pc.todo(groups, root)
+
 
 def _efficiency(folder: Path, seed: int, successes: dict[int, float], task="Lift",
                 algo="srfmp") -> None:
