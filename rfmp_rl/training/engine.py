@@ -588,7 +588,10 @@ class Trainer:
         with _StopSignals() as signals:
             if self.pending_validation:  # the run stopped on a validation step before it ran
                 self._validate_all(logger, signals)
-            while self.step < total:
+            if self.step < total and self.minutes >= cfg.max_minutes and main:
+                print(f"train.max_minutes={cfg.max_minutes} was reached at step {self.step} "
+                      f"({self.minutes:.1f} min): nothing to train; raise it to continue")
+            while self.step < total and self.minutes < cfg.max_minutes:
                 self.step += 1
                 progress = max(self.step / total, self.minutes / cfg.max_minutes)
                 lr = lr_at(self.optim_cfg, self.step, progress)

@@ -145,6 +145,28 @@ def test_sigterm_then_resume_matches_an_uninterrupted_run(tmp_path):
         assert restored.cfg.algorithm == "srfmp"
 
 
+def test_a_run_stopped_by_its_time_cap_resumes_without_training_until_the_cap_is_raised(
+        tmp_path, capsys):
+    model, rb, val = _fresh()
+    run = tmp_path / "capped"
+    first = _trainer(model, rb, val, run, 50, max_minutes=1e-9)
+    assert first.fit().steps == 1  # the cap ends the run after its first step
+    before = read_checkpoint(run / "last.pt")["training_state"]
+
+    def resumed(max_minutes):
+        model, rb, val = _fresh()
+        return Trainer(model, rb, val, runtime=CPU, run_dir=run, recipe="toy",
+                       optim=OptimConfig(lr=1e-3, warmup_steps=1),
+                       train=TrainConfig(steps=50, val_batches=1, max_minutes=max_minutes),
+                       resume=run / "last.pt", progress=False)
+
+    again = resumed(1e-9)
+    assert again.fit().steps == 1  # not one more step past the cap
+    assert "train.max_minutes=1e-09 was reached at step 1" in capsys.readouterr().out
+    assert read_checkpoint(run / "last.pt")["training_state"]["step"] == before["step"]
+    assert resumed(math.inf).fit().steps == 50  # a raised cap continues the run
+
+
 def test_resume_refuses_a_different_model_or_recipe_and_best_pt(tmp_path):
     model, rb, val = _fresh()
     _trainer(model, rb, val, tmp_path / "run", 2, val_every=1).fit()
