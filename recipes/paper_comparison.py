@@ -4,6 +4,7 @@
     python recipes/paper_comparison.py --record --out results/paper_comparison.md
     python recipes/paper_comparison.py --manifest my_runs.yaml --root /data/rfmp_rl
     python recipes/paper_comparison.py --todo > todo.sh   # the runs still missing, a job a line
+    bash todo.sh                                            # ... one after another
 
 ``recipes/paper_comparison.yaml`` (the manifest) names every group of training runs (folder per
 training seed, training command) and every table: Push-T NFE sweep, integration time, Sphere
