@@ -45,6 +45,7 @@ import re
 import shutil
 import statistics
 import sys
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -353,17 +354,14 @@ def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None,
         >>> todo({"s": s, "t": g}, Path("/nonexistent"))
         ['train.py out=runs/t0', 'cp.py teacher=runs/t0/best.pt out=runs/s0']
     """
-    import time
-
     now = time.time() if now is None else now
     found: dict[str, tuple[RunGroup, int, RunState]] = {}
     for group in groups.values():
         for i, state in enumerate(read_group(root, group, records)):
             found.setdefault(state.folder, (group, i, state))
 
-    def fresh(group: RunGroup, i: int) -> str:
-        evaluate = group.evaluations[i] if group.evaluations else None
-        return group.commands[i] + (f" && {evaluate}" if evaluate else "")
+    def then_evaluate(state: RunState) -> str:
+        return f" && {state.evaluate}" if state.evaluate else ""
 
     jobs: dict[str, str] = {}
     for folder, (group, i, state) in found.items():
@@ -371,12 +369,10 @@ def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None,
             jobs[folder] = (f"# {folder}: its command does not name the folder, so its run would "
                             f"not be found; give it out_dir={folder}: {group.commands[i]}")
         elif state.status == NOT_RUN:
-            jobs[folder] = fresh(group, i)
+            jobs[folder] = group.commands[i] + then_evaluate(state)
         elif state.status == NO_EVAL and (root / folder / "last.pt").is_file():
             # continue it (a finished run resumes at its end, then evaluates)
-            evaluate = group.evaluations[i] if group.evaluations else None
-            line = (f"{group.commands[i]} resume={folder}"
-                    + (f" && {evaluate}" if evaluate else ""))
+            line = f"{group.commands[i]} resume={folder}" + then_evaluate(state)
             minutes = _minutes_since_written(root / folder, now)
             if minutes < RECENT_MINUTES:
                 line = (f"# {folder} was written to {minutes:.0f} min ago and may still be "
@@ -391,9 +387,9 @@ def todo(groups: dict[str, RunGroup], root: Path, records: Path | None = None,
     while grown:
         grown = False
         for folder, line in list(jobs.items()):
-            for other, (group, i, _) in found.items():
+            for other, (group, i, state) in found.items():
                 if other not in jobs and not (root / other).is_dir() and _needs(line, other):
-                    jobs[other] = fresh(group, i)
+                    jobs[other] = group.commands[i] + then_evaluate(state)
                     notes[other] = (f"  # again: {other} is kept only as a record, and "
                                     f"{folder} reads it")
                     grown = True
@@ -699,7 +695,7 @@ def main(argv: list[str] | None = None) -> str:
     parser.add_argument("--no-records", action="store_true",
                         help="read only the run folders")
     parser.add_argument("--record", action="store_true",
-                        help="first copy every existing run folder's evaluation table, "
+                        help="first copy every evaluated run folder's evaluation table, "
                              "config.yaml, command.txt and .cmd into --records")
     parser.add_argument("--out", type=Path, default=None, help="write the markdown here too")
     parser.add_argument("--todo", action="store_true",
