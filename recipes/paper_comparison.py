@@ -564,7 +564,7 @@ def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path,
     nfe, epochs = int(table["nfe"]), [int(e) for e in table["epochs"]]
     t_end = float(table.get("t_end", 1.0))
     notes = Footnotes()
-    header = ["policy", "NFE", "T reached", "paper (its text)",
+    header = ["policy", "NFE", "T reached", "paper (its text)", "paper at epoch 50 (its NFE table)",
               *(f"epoch {e}" for e in epochs)]
     lines = _head(table) + [f"Success at NFE {nfe}, T {t_end:g} asked, of the snapshot at each "
                             "epoch, from each run's `efficiency.csv`.", "",
@@ -597,10 +597,15 @@ def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path,
             else:
                 cells.append(f"{NOT_RUN} {ref}")
         claim = paper.EFFICIENCY_CLAIMS.get((row["task"], row["algo"]), "-")
-        lines.append(f"| {row['policy']} | {nfe} | {_t_text(reached)} | {claim} | "
+        at_50 = (paper.ROBOMIMIC_STATE.cell(f"{row['task']}/{row['algo']}", nfe, t_end)
+                 if row["algo"] in paper.FIFTY_EPOCH_ALGOS else "-")
+        lines.append(f"| {row['policy']} | {nfe} | {_t_text(reached)} | {claim} | {at_50} | "
                      + " | ".join(cells) + " |")
     caption, _ = paper.EFFICIENCY_FIGURE
-    return lines + ["", f'Paper column: figure "{caption}" (state), as its text describes it.',
+    return lines + ["", f'Paper column: figure "{caption}" (state), as its text describes it. '
+                    f'Paper at epoch 50: table "{paper.ROBOMIMIC_STATE.caption}" at the same NFE '
+                    "and T, whose RFMP and SRFMP rows are its 50-epoch models; its DP rows are "
+                    "trained 300 epochs, so none is given for DDIM.",
                     "", "Runs and commands:", "", *notes.lines, ""]
 
 

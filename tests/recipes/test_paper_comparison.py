@@ -298,7 +298,9 @@ def _efficiency_manifest(tmp_path: Path) -> Path:
                     "evaluate": "efficiency.py runs/e{seed}"}}
     table = {"title": "Training efficiency", "kind": "efficiency", "claim": "fast", "nfe": 3,
              "epochs": [10, 20, 30],
-             "rows": [{"task": "Lift", "algo": "srfmp", "policy": "Lift, SRFMP", "runs": "eff"}]}
+             "rows": [{"task": "Lift", "algo": "srfmp", "policy": "Lift, SRFMP", "runs": "eff"},
+                      {"task": "Lift", "algo": "ddim", "policy": "Lift, DDIM", "runs": "eff_dp"}]}
+    runs["eff_dp"] = {**runs["eff"], "folder": "runs/d{seed}", "seeds": [0]}
     return _manifest(tmp_path, runs, [table])
 
 
@@ -308,9 +310,14 @@ def test_efficiency_table_averages_the_seeds_at_each_epoch(tmp_path):
     _efficiency(root / "runs" / "e1", 1, {10: 0.7, 20: 1.0})
     (root / "runs" / "e2").mkdir()  # still training: no efficiency.csv yet
     text = pc.build(_efficiency_manifest(tmp_path), root, "cmd")
+    # the paper at epoch 50: its NFE table's 50-epoch flows at NFE 3 (Lift SRFMP 0.992 ± 0.010);
+    # none for DP, whose rows there are trained 300 epochs
     assert _line(text, "| Lift, SRFMP |") == [
-        "| Lift, SRFMP | 3 | 1.00 | high success after 20 epochs | 0.600 ± 0.141 (2 of 3 runs) "
-        "[1] | 1.000 ± 0.000 (2 of 3 runs) [1] | not evaluated at this setting [1] |"]
+        "| Lift, SRFMP | 3 | 1.00 | high success after 20 epochs | 0.992 ± 0.010 | 0.600 ± 0.141 "
+        "(2 of 3 runs) [1] | 1.000 ± 0.000 (2 of 3 runs) [1] | not evaluated at this setting [1] |"]
+    assert _line(text, "| Lift, DDIM |") == [
+        "| Lift, DDIM | 3 | - | success still low after 50 epochs | - | not run [2] | "
+        "not run [2] | not run [2] |"]
     assert _line(text, "  - `runs/e2` (seed 2)") == [
         "  - `runs/e2` (seed 2): exists, no evaluation yet; training: `train.py train.epochs=50 "
         "seed=2`; evaluation: `efficiency.py runs/e2`"]
