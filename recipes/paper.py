@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 __all__ = [
     "PaperTable", "PUSHT_NFE", "PUSHT_TIME", "SPHERE_PRIORS", "ROBOMIMIC_STATE",
     "ROBOMIMIC_VISION", "KITCHEN", "TRAIN_TIME", "TRAIN_TIME_TABLE", "EFFICIENCY_FIGURE",
-    "EFFICIENCY_CLAIMS", "FIFTY_EPOCH_ALGOS", "ORIENTATION_CLAIM", "REAL_ROBOT_CLAIM",
+    "EFFICIENCY_CLAIMS", "FIFTY_EPOCH_ROWS", "ORIENTATION_CLAIM", "REAL_ROBOT_CLAIM",
     "RFMP_BEYOND_T1_FIGURE", "RFMP_BEYOND_T1_CLAIM", "LASA_FLOWS_FIGURE", "LASA_FLOWS_CLAIM",
     "TABLES", "pusht_euclidean", "pusht_sphere", "robomimic_state",
 ]
@@ -204,9 +204,11 @@ EFFICIENCY_CLAIMS = {
        for algo in ("rfmp", "srfmp")},
     ("NutAssemblySquare", "ddim"): "slower to reach high success than RFMP / SRFMP",
 }
-#: The algorithms whose rows of ROBOMIMIC_STATE are the paper's 50-epoch models (Lift, Can,
-#: Square), the last point of its training-efficiency curves; its DP rows are trained 300 epochs.
-FIFTY_EPOCH_ALGOS = ("rfmp", "srfmp")
+#: The ``(task, algo)`` rows of ROBOMIMIC_STATE that are the paper's 50-epoch models, the last
+#: point of its training-efficiency curves; its DP rows are trained 300 epochs, its Tool Hang
+#: flows 100.
+FIFTY_EPOCH_ROWS = frozenset((task, algo) for task in ("Lift", "PickPlaceCan", "NutAssemblySquare")
+                             for algo in ("rfmp", "srfmp"))
 
 #: The paper's case for the Riemannian orientation: no simulated figure; its real-robot tasks
 #: and its summary ("unit-norm normalization as a post-processing step for quaternions would

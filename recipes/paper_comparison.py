@@ -598,7 +598,7 @@ def efficiency_table(table: dict, groups: dict[str, RunGroup], root: Path,
                 cells.append(f"{NOT_RUN} {ref}")
         claim = paper.EFFICIENCY_CLAIMS.get((row["task"], row["algo"]), "-")
         at_50 = (paper.ROBOMIMIC_STATE.cell(f"{row['task']}/{row['algo']}", nfe, t_end)
-                 if row["algo"] in paper.FIFTY_EPOCH_ALGOS else "-")
+                 if (row["task"], row["algo"]) in paper.FIFTY_EPOCH_ROWS else "-")
         lines.append(f"| {row['policy']} | {nfe} | {_t_text(reached)} | {claim} | {at_50} | "
                      + " | ".join(cells) + " |")
     caption, _ = paper.EFFICIENCY_FIGURE

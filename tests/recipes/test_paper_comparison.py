@@ -299,7 +299,9 @@ def _efficiency_manifest(tmp_path: Path) -> Path:
     table = {"title": "Training efficiency", "kind": "efficiency", "claim": "fast", "nfe": 3,
              "epochs": [10, 20, 30],
              "rows": [{"task": "Lift", "algo": "srfmp", "policy": "Lift, SRFMP", "runs": "eff"},
-                      {"task": "Lift", "algo": "ddim", "policy": "Lift, DDIM", "runs": "eff_dp"}]}
+                      {"task": "Lift", "algo": "ddim", "policy": "Lift, DDIM", "runs": "eff_dp"},
+                      {"task": "ToolHang", "algo": "srfmp", "policy": "Tool Hang, SRFMP",
+                       "runs": "eff_dp"}]}
     runs["eff_dp"] = {**runs["eff"], "folder": "runs/d{seed}", "seeds": [0]}
     return _manifest(tmp_path, runs, [table])
 
@@ -318,6 +320,9 @@ def test_efficiency_table_averages_the_seeds_at_each_epoch(tmp_path):
     assert _line(text, "| Lift, DDIM |") == [
         "| Lift, DDIM | 3 | - | success still low after 50 epochs | - | not run [2] | "
         "not run [2] | not run [2] |"]
+    # Tool Hang's SRFMP row in the NFE table is a 100-epoch model: no epoch-50 figure
+    assert _line(text, "| Tool Hang, SRFMP |") == [
+        "| Tool Hang, SRFMP | 3 | - | - | - | not run [2] | not run [2] | not run [2] |"]
     assert _line(text, "  - `runs/e2` (seed 2)") == [
         "  - `runs/e2` (seed 2): exists, no evaluation yet; training: `train.py train.epochs=50 "
         "seed=2`; evaluation: `efficiency.py runs/e2`"]
