@@ -195,6 +195,8 @@ TRAIN_TIME = {
 EFFICIENCY_FIGURE = ("Success rate (mean and standard deviation) on Robomimic tasks with "
                      "state-based observations at different checkpoints",
                      "fig:robomimic epoch influence")
+#: The tasks of that figure.
+EFFICIENCY_TASKS = ("Lift", "PickPlaceCan", "NutAssemblySquare")
 #: What its text reads off the curves, by (task, algo).
 EFFICIENCY_CLAIMS = {
     **{(task, algo): "high success after 20 epochs"
@@ -207,7 +209,7 @@ EFFICIENCY_CLAIMS = {
 #: The ``(task, algo)`` rows of ROBOMIMIC_STATE that are the paper's 50-epoch models, the last
 #: point of its training-efficiency curves; its DP rows are trained 300 epochs, its Tool Hang
 #: flows 100.
-FIFTY_EPOCH_ROWS = frozenset((task, algo) for task in ("Lift", "PickPlaceCan", "NutAssemblySquare")
+FIFTY_EPOCH_ROWS = frozenset((task, algo) for task in EFFICIENCY_TASKS
                              for algo in ("rfmp", "srfmp"))
 
 #: The paper's case for the Riemannian orientation: no simulated figure; its real-robot tasks

@@ -1,0 +1,2 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=NutAssemblySquare algo=ddim seed=2 threads=1 optim.lr=1e-4 train.batch_size=512 train.epochs=50 train.snapshot_every_epochs=10 train.max_minutes=null eval.final_eval=false out_dir=runs/robosuite/eff_square_ddim_seed2
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/efficiency.py runs/robosuite/eff_square_ddim_seed2 --threads 1
