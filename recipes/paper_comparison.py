@@ -87,7 +87,7 @@ class RunGroup:
     folders: tuple[str, ...]
     seeds: tuple[int | None, ...]
     commands: tuple[str, ...]
-    file: str = "eval/eval.csv"
+    files: tuple[str, ...] = ("eval/eval.csv",)
     note: str | None = None
     folder_template: str = ""
     command_template: str = ""
@@ -121,13 +121,28 @@ class RunGroup:
         if len(set(folders)) != len(folders):
             raise ValueError(f"runs.{name}: several seeds share one folder {folders[0]!r} "
                              "(put {seed} in 'folder')")
-        return cls(name, entry["recipe"], folders, seeds, commands,
-                   entry.get("file", "eval/eval.csv"), entry.get("note"), entry["folder"],
-                   entry["command"], evaluations, entry.get("evaluate") or "")
+        files = entry.get("file", "eval/eval.csv")
+        files = (files,) if isinstance(files, str) else tuple(files or ())
+        if not files or not all(isinstance(f, str) and f for f in files):
+            raise ValueError(f"runs.{name}.file: expected a path or a list of paths, got "
+                             f"{entry.get('file')!r}")
+        return cls(name, entry["recipe"], folders, seeds, commands, files, entry.get("note"),
+                   entry["folder"], entry["command"], evaluations, entry.get("evaluate") or "")
 
     @property
     def metric(self) -> str:
         return METRICS[self.recipe]
+
+    @property
+    def file(self) -> str:
+        """The evaluation table's name, as the report states it (``a or b`` for a list)."""
+        return " or ".join(self.files)
+
+    def table(self, folder: Path) -> Path | None:
+        """The evaluation table of a run folder: the first of `files` that it holds (a list
+        serves runs of one group evaluated differently, e.g. a checkpoint trained before an
+        option re-evaluated with it into its own file, later ones evaluated by training)."""
+        return next((folder / f for f in self.files if (folder / f).is_file()), None)
 
 
 def load_manifest(path: Path) -> tuple[dict[str, RunGroup], list[dict]]:
@@ -238,10 +253,10 @@ def read_run(root: Path, group: RunGroup, index: int, records: Path | None = Non
     path = root / folder
     state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index],
                      evaluate=group.evaluations[index] if group.evaluations else None)
-    if not state.exists and records is not None and (records / folder / group.file).is_file():
+    if not state.exists and records is not None and group.table(records / folder):
         path = records / folder
         state.exists = True
-        state.record = _shown_path(path / group.file)
+        state.record = _shown_path(group.table(path))
     # one command per line: a resumed run's file adds the resuming command below the first
     for cmd_file, shown in ((path.with_name(path.name + ".cmd"), f"{folder}.cmd"),
                             (path / COMMAND_FILE, f"{folder}/{COMMAND_FILE}")):
@@ -252,10 +267,12 @@ def read_run(root: Path, group: RunGroup, index: int, records: Path | None = Non
             break
     if not state.exists:
         return state
-    table = state.table_path = path / group.file
-    if not table.is_file():
+    table = group.table(path)
+    if table is None:
+        state.table_path = path / group.files[0]
         state.status = NO_EVAL
         return state
+    state.table_path = table
     state.rows = read_table(table)
     comments = _comments(table)
     state.eval_command = comments[0] if comments else None
@@ -292,9 +309,11 @@ def record_runs(groups: dict[str, RunGroup], root: Path, records: Path) -> list[
     for group in groups.values():
         for folder in group.folders:
             path = root / folder
-            if not (path / group.file).is_file():  # absent, or not evaluated yet
+            table = group.table(path)
+            if table is None:  # absent, or not evaluated yet
                 continue
-            for src, rel in ((path / group.file, Path(folder) / group.file),
+            rel_table = table.relative_to(path)
+            for src, rel in ((table, Path(folder) / rel_table),
                              (path / "config.yaml", Path(folder) / "config.yaml"),
                              (path / COMMAND_FILE, Path(folder) / COMMAND_FILE),
                              (path.with_name(path.name + ".cmd"), Path(f"{folder}.cmd"))):

@@ -194,6 +194,36 @@ def test_a_transcribed_record_names_its_source(two_of_three, tmp_path):
                        "was not kept)")
 
 
+def test_a_list_of_files_reads_the_first_one_each_folder_holds(tmp_path):
+    """A checkpoint re-evaluated into its own file beside runs whose training evaluates."""
+    root, records = tmp_path / "repo", tmp_path / "records"
+    _eval_csv(root / "runs" / "s0", [(1, 1.0, 0.4, 0.1), (3, 1.0, 1.0, 0.2)])  # superseded
+    again = root / "runs" / "s0" / "again"
+    again.mkdir()
+    (again / "eval.csv").write_text("# eval.py tau_max=trained\nalgo,nfe,t_end,t_reached,score\n"
+                                    "srfmp,3,1.0,1.0,0.9\n")
+    _eval_csv(root / "runs" / "s1", [(1, 1.0, 0.4, 0.5), (3, 1.0, 1.0, 0.7)])
+    runs = {"g": {"recipe": "pusht", "folder": "runs/s{seed}", "seeds": [0, 1, 2],
+                  "command": PUSHT_CMD, "file": ["again/eval.csv", "eval/eval.csv"]}}
+    manifest = _manifest(tmp_path, runs, [_sweep([{"policy": "SRFMP", "paper": None,
+                                                   "ours": "g"}], columns={"ours": "ours"})])
+    text = pc.build(manifest, root, "cmd")
+    assert _line(text, "| SRFMP |") == [
+        "| SRFMP | 1 | 1 | 0.40 | - | 0.500 (1 of 3 runs) [1] |",
+        "| SRFMP | 3 | 1 | 1.00 | - | 0.800 ± 0.141 (2 of 3 runs) [1] |"]
+    assert "evaluated by `eval.py tau_max=trained`" in _line(text, "  - `runs/s0` (seed 0)")[0]
+    written = pc.record_runs(pc.load_manifest(manifest)[0], root, records)
+    assert sorted(p.relative_to(records).as_posix() for p in written) == [
+        "runs/s0/again/eval.csv", "runs/s1/eval/eval.csv"]
+    assert _line(pc.build(manifest, tmp_path / "clone", "cmd", records), "| SRFMP |") == \
+        _line(text, "| SRFMP |")
+    (root / "runs" / "s2").mkdir()
+    assert any("runs/s2 exists without its again/eval.csv or eval/eval.csv" in line
+               for line in pc.todo(pc.load_manifest(manifest)[0], root))
+    with pytest.raises(ValueError, match=r"runs.g.file: expected a path or a list of paths"):
+        pc.load_manifest(_manifest(tmp_path, {"g": {**runs["g"], "file": []}}, []))
+
+
 def test_main_records_then_reports(two_of_three, tmp_path):
     manifest, root = two_of_three
     records, out = tmp_path / "records", tmp_path / "report.md"
