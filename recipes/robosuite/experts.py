@@ -34,10 +34,12 @@ recipe's ``data.path``).
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::
 
-    python recipes/robosuite/experts.py --task Lift --n 200 --action-space delta \\
-        [--images] --out data/robosuite/lift_delta.hdf5
+    python recipes/robosuite/experts.py --task Lift --n 200 --action-space delta [--images]
     python recipes/robosuite/experts.py --task Lift --action-space abs_pose --evaluate 100
     python recipes/robosuite/experts.py --task TwoArmTransport --evaluate 100
+
+The first writes the file that ``train.py task=Lift action_space=delta [obs=image]`` reads
+(`default_demo_path`; ``--out`` for another); an existing file is kept unless ``--overwrite``.
 """
 
 from __future__ import annotations
@@ -88,8 +90,12 @@ __all__ = [
     "down_rotation",
     "yaw_of",
     "wrap_angle",
+    "default_demo_path",
     "main",
 ]
+
+#: Where the recipe's demonstration files live (`default_demo_path`).
+DATA_DIR = Path(__file__).resolve().parents[2] / "data" / "robosuite"
 
 # Grip-site orientation pointing down with the fingers closing along world y (yaw 0): columns are
 # the site's x (closing axis), y and z (approach) axes in the world frame.
@@ -782,6 +788,14 @@ def generate_demos(
     return result
 
 
+def default_demo_path(task: str, action_space: str, images: bool = False) -> Path:
+    """The demonstration file that ``train.py task=<task> action_space=<action_space>`` reads
+    (with ``obs=image`` when ``images``): ``data/robosuite/<task>_<action_space>[_images].hdf5``
+    under the repository root."""
+    suffix = "_images" if images else ""
+    return DATA_DIR / f"{task.lower()}_{action_space}{suffix}.hdf5"
+
+
 def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     """Command line: generate demos, or ``--evaluate N`` to measure the expert's success rate.
 
@@ -793,8 +807,12 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--task", required=True, choices=list(ROBOSUITE_MAX_STEPS))
     parser.add_argument("--action-space", default="delta", choices=["delta", "abs_pose"])
     parser.add_argument("--n", type=int, default=200, help="successful demos to collect")
-    parser.add_argument("--out", default=None, help="output .hdf5 (default data/robosuite/...)")
-    parser.add_argument("--images", action="store_true", help="record both cameras")
+    parser.add_argument("--out", default=None,
+                        help="output .hdf5 (default: the file train.py reads, "
+                             "data/robosuite/<task>_<action space>[_images].hdf5)")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="replace the output file when it exists (default: refuse)")
+    parser.add_argument("--images", action="store_true", help="record the task's cameras")
     parser.add_argument("--seed-start", type=int, default=0)
     parser.add_argument("--max-attempts", type=int, default=None)
     parser.add_argument("--noise-std", type=float, default=0.0, help="position noise (m)")
@@ -810,9 +828,13 @@ def main(argv: Sequence[str] | None = None) -> dict[str, Any]:
         result = evaluate_expert(args.task, args.action_space, args.evaluate,
                                  seed_start=args.seed_start, verbose=not args.quiet, **kwargs)
     else:
-        out = args.out or f"data/robosuite/{args.task.lower()}_{args.action_space}.hdf5"
+        out = Path(args.out) if args.out else default_demo_path(args.task, args.action_space,
+                                                                 args.images)
+        if out.exists() and not args.overwrite:
+            raise SystemExit(f"experts.py: {out} exists; give another --out, or --overwrite to "
+                             "replace it")
         result = generate_demos(args.task, args.n, args.action_space, images=args.images,
-                                seed_start=args.seed_start, path=out,
+                                seed_start=args.seed_start, path=str(out),
                                 max_attempts=args.max_attempts, verbose=not args.quiet, **kwargs)
     if args.quiet:  # the summary only
         print_summary(result)

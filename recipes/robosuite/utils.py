@@ -15,7 +15,6 @@ from tensordict.nn import TensorDictModule, TensorDictSequential
 
 from recipes import paper
 from recipes.common import (
-    ROOT,
     TaskEval,
     check_algo,
     check_runtime_config,
@@ -120,8 +119,9 @@ def low_dim_sizes(cfg: DictConfig) -> list[list]:
 def data_path(cfg: DictConfig) -> Path:
     if cfg.data.path:
         return resolve(cfg.data.path)
-    suffix = "_images" if cfg.obs == "image" else ""
-    return ROOT / "data" / "robosuite" / f"{cfg.task.lower()}_{cfg.action_space}{suffix}.hdf5"
+    from experts import default_demo_path  # recipes/robosuite/experts.py
+
+    return default_demo_path(cfg.task, cfg.action_space, images=cfg.obs == "image")
 
 
 def ensure_demos(cfg: DictConfig) -> Path:

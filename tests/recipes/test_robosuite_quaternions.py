@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 from omegaconf import OmegaConf
-from recipe_loader import compose, load_recipe
+from recipe_loader import ROOT, compose, load_recipe
 
 pytest.importorskip("robosuite")
 os.environ.setdefault("MUJOCO_GL", "egl")
@@ -52,7 +52,7 @@ def test_training_data_env_and_controller_agree_on_a_recorded_episode(recipe, tm
                                                                       monkeypatch):
     from experts import generate_demos  # recipes/robosuite, on the path while `recipe` lives
 
-    monkeypatch.syspath_prepend(str(recipe["utils"].ROOT / "deploy"))
+    monkeypatch.syspath_prepend(str(ROOT / "deploy"))
     utils = recipe["utils"]
     cfg = compose("robosuite", ["task=PickPlaceCan", "action_space=abs_pose", *SMALL])
     assert cfg.obs_quaternions == "canonical"  # the recipe's default
@@ -89,7 +89,7 @@ def test_training_data_env_and_controller_agree_on_a_recorded_episode(recipe, tm
 
 
 def test_a_checkpoint_without_the_rule_keeps_raw_observations(recipe, tmp_path, monkeypatch):
-    monkeypatch.syspath_prepend(str(recipe["utils"].ROOT / "deploy"))
+    monkeypatch.syspath_prepend(str(ROOT / "deploy"))
     utils = recipe["utils"]
     cfg = compose("robosuite", ["task=Lift", *SMALL])
     model = _model(utils, cfg, 7)

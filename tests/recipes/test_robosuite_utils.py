@@ -1,5 +1,7 @@
 """recipes/robosuite/utils.py: the paper's state-based robomimic figures beside a run's table, and
-no note about them where the paper reports none (state-based Transport, Consistency Policy)."""
+no note about them where the paper reports none (state-based Transport, Consistency Policy); the
+demonstration file that train.py reads is the one experts.py writes, and experts.py never
+replaces a file it was not told to."""
 
 from __future__ import annotations
 
@@ -23,3 +25,24 @@ def test_a_reported_setting_gets_the_paper_column_and_its_note(utils):
 def test_an_unreported_setting_has_no_paper_column_and_no_note_about_one(utils, overrides):
     task = utils.eval_task(compose("robosuite", overrides))
     assert task.paper == {} and task.notes == []
+
+
+@pytest.mark.parametrize("obs", ["state", "image"])
+def test_experts_write_the_file_that_training_reads(utils, obs):
+    import experts  # recipes/robosuite, on the path while `utils` lives
+
+    cfg = compose("robosuite", ["task=MugFlip", "action_space=abs_pose", f"obs={obs}"])
+    path = experts.default_demo_path("MugFlip", "abs_pose", images=obs == "image")
+    assert utils.data_path(cfg) == path
+    assert path.name == {"state": "mugflip_abs_pose.hdf5",
+                         "image": "mugflip_abs_pose_images.hdf5"}[obs]
+
+
+def test_experts_refuse_to_replace_an_existing_file(utils, tmp_path):
+    import experts
+
+    demos = tmp_path / "mine.hdf5"
+    demos.write_bytes(b"a user's demonstrations")
+    with pytest.raises(SystemExit, match=f"{demos} exists; give another --out, or --overwrite"):
+        experts.main(["--task", "Lift", "--n", "1", "--out", str(demos)])
+    assert demos.read_bytes() == b"a user's demonstrations"
