@@ -253,10 +253,11 @@ def read_run(root: Path, group: RunGroup, index: int, records: Path | None = Non
     path = root / folder
     state = RunState(folder, group.seeds[index], path.is_dir(), group.commands[index],
                      evaluate=group.evaluations[index] if group.evaluations else None)
-    if not state.exists and records is not None and group.table(records / folder):
+    recorded = group.table(records / folder) if records is not None else None
+    if not state.exists and recorded is not None:
         path = records / folder
         state.exists = True
-        state.record = _shown_path(group.table(path))
+        state.record = _shown_path(recorded)
     # one command per line: a resumed run's file adds the resuming command below the first
     for cmd_file, shown in ((path.with_name(path.name + ".cmd"), f"{folder}.cmd"),
                             (path / COMMAND_FILE, f"{folder}/{COMMAND_FILE}")):

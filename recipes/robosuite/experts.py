@@ -58,6 +58,7 @@ import numpy as np
 import torch
 from tensordict import TensorDict, TensorDictBase
 
+from recipes.common import ROOT
 from recipes.expert_demos import (
     act_batched,
     attempts_limit,
@@ -95,7 +96,7 @@ __all__ = [
 ]
 
 #: Where the recipe's demonstration files live (`default_demo_path`).
-DATA_DIR = Path(__file__).resolve().parents[2] / "data" / "robosuite"
+DATA_DIR = ROOT / "data" / "robosuite"
 
 # Grip-site orientation pointing down with the fingers closing along world y (yaw 0): columns are
 # the site's x (closing axis), y and z (approach) axes in the world frame.
