@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=TwoArmTransport algo=rfmp threads=1 optim.lr=0.001 train.steps=4000 train.max_minutes=600 seed=0 out_dir=runs/robosuite/transport_rfmp_seed0
