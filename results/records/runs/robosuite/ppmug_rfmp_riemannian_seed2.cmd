@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=PickPlaceMug action_space=abs_pose threads=1 optim.lr=0.001 train.steps=2200 train.max_minutes=600 seed=2 algo=rfmp geometry=riemannian out_dir=runs/robosuite/ppmug_rfmp_riemannian_seed2
