@@ -26,10 +26,8 @@ Phases:
 A grasp that closes on nothing, or an object that does not rise with the gripper, sends the
 expert back to the approach (at most ``max_regrasps`` times).
 
-TwoArmTransport's two-arm expert is `experts_hard.TransportExpert` (`make_expert` picks the
-expert of a task); there is no scripted ToolHang expert (the wrench's hole has no clearance over
-the hook's end: recipes/robosuite/README.md; a robomimic ToolHang file trains through the
-recipe's ``data.path``).
+TwoArmTransport's two-arm expert is `experts_hard.TransportExpert` and ToolHang's
+`experts_toolhang.ToolHangExpert` (`make_expert` picks the expert of a task).
 
 `generate_demos` runs the expert from consecutive seeds, keeps the successful episodes and
 writes them as a robomimic HDF5 file. Command line::
@@ -530,9 +528,35 @@ class RobosuiteExpert:
         return np.concatenate([pos, hand, [gripper]])
 
 
+class PoseExpert(RobosuiteExpert):
+    """`RobosuiteExpert` whose goal orientation is any rotation (a scipy ``Rotation`` of the grip
+    site), not only a downward grip with a yaw: the base of the mug and ToolHang experts."""
+
+    def _reached_pose(self, sim_env: Any, pos: np.ndarray, rot, tol: float,
+                      rot_tol: float = 0.08) -> bool:
+        """The setpoint is at ``pos`` and the grip site within ``tol`` of it (and of ``rot``)."""
+        eef, eef_rot = self._eef(sim_env)
+        if np.linalg.norm(self._sp_pos - pos) > 1e-3 or np.linalg.norm(eef - pos) > tol:
+            return False
+        if rot is None:
+            return True
+        return (rot * _rot().from_matrix(eef_rot).inv()).magnitude() < rot_tol
+
+    def _turn_setpoint(self, goal_rot) -> None:
+        """Turn the setpoint orientation toward ``goal_rot`` (any rotation), at most
+        ``turn_speed`` rad per step."""
+        turn = (goal_rot * self._sp_rot.inv()).as_rotvec()
+        angle = float(np.linalg.norm(turn))
+        if angle > self.turn_speed:
+            turn *= self.turn_speed / angle
+        self._sp_rot = _rot().from_rotvec(turn) * self._sp_rot
+        self._sp_yaw = yaw_of(self._sp_rot.as_matrix())
+
+
 def _sibling(name: str):
-    """recipes/robosuite/<name>.py (experts_mug, experts_hard), imported by its path: the recipe's
-    scripts are not a package, and the module imports this one as ``experts``."""
+    """recipes/robosuite/<name>.py (experts_mug, experts_hard, experts_toolhang), imported by its
+    path: the recipe's scripts are not a package, and the module imports this one as
+    ``experts``."""
     if name not in sys.modules:
         spec = importlib.util.spec_from_file_location(name, Path(__file__).with_name(f"{name}.py"))
         module = importlib.util.module_from_spec(spec)
@@ -551,8 +575,9 @@ def _sibling(name: str):
 
 def make_expert(task: str, action_space: str = "delta", **expert_kwargs: Any):
     """The scripted expert of ``task``: `RobosuiteExpert`; for PickPlaceMug and MugFlip
-    experts_mug.py's `MugExpert`; for TwoArmTransport ``experts_hard.TransportExpert`` (the same
-    ``reset`` / ``act`` / ``info`` interface). ``expert_kwargs`` are their common arguments.
+    experts_mug.py's `MugExpert`; for TwoArmTransport ``experts_hard.TransportExpert``; for
+    ToolHang ``experts_toolhang.ToolHangExpert`` (the same ``reset`` / ``act`` / ``info``
+    interface). ``expert_kwargs`` are their common arguments.
 
     Example:
         >>> type(make_expert("Lift")).__name__
@@ -563,9 +588,12 @@ def make_expert(task: str, action_space: str = "delta", **expert_kwargs: Any):
         return _sibling("experts_mug").MugExpert(task, action_space, **expert_kwargs)
     if task == "TwoArmTransport":
         return _sibling("experts_hard").TransportExpert(task, action_space, **expert_kwargs)
+    if task == "ToolHang":
+        return _sibling("experts_toolhang").ToolHangExpert(task, action_space, **expert_kwargs)
     if task not in _PARAMS:
+        known = sorted([*_PARAMS, *ROBOSUITE_MUG_TASKS, "TwoArmTransport", "ToolHang"])
         raise ValueError(f"no scripted expert for robosuite task {task!r}; experts exist for "
-                         f"{sorted([*_PARAMS, *ROBOSUITE_MUG_TASKS, 'TwoArmTransport'])}")
+                         f"{known}")
     return RobosuiteExpert(task, action_space, **expert_kwargs)
 
 

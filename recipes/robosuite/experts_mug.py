@@ -32,12 +32,11 @@ import numpy as np
 from experts import (
     _GRIP_CLOSE,
     _GRIP_OPEN,
-    RobosuiteExpert,
+    PoseExpert,
     _closest_yaw,
     _object_yaw,
     _rot,
     down_rotation,
-    yaw_of,
 )
 
 from rfmp_rl.envs.robosuite import ROBOSUITE_MUG_TASKS, _check
@@ -56,7 +55,7 @@ MUG_PARAMS: dict[str, dict[str, Any]] = {
 }
 
 
-class MugExpert(RobosuiteExpert):
+class MugExpert(PoseExpert):
     """Waypoint planner for PickPlaceMug and MugFlip (see the module docstring).
 
     Args:
@@ -98,16 +97,6 @@ class MugExpert(RobosuiteExpert):
     # ----- simulator reads --------------------------------------------------------------------
     def _plate(self, sim_env: Any) -> np.ndarray:
         return np.array(sim_env.sim.data.body_xpos[self._plate_body], dtype=np.float64)
-
-    def _reached_pose(self, sim_env: Any, pos: np.ndarray, rot, tol: float,
-                      rot_tol: float = 0.08) -> bool:
-        """The setpoint is at ``pos`` and the grip site within ``tol`` of it (and of ``rot``)."""
-        eef, eef_rot = self._eef(sim_env)
-        if np.linalg.norm(self._sp_pos - pos) > 1e-3 or np.linalg.norm(eef - pos) > tol:
-            return False
-        if rot is None:
-            return True
-        return (rot * _rot().from_matrix(eef_rot).inv()).magnitude() < rot_tol
 
     def _holding(self, sim_env: Any, drop: float = 0.0) -> bool:
         """The fingers have not closed on nothing and the mug is within reach of them."""
@@ -233,14 +222,3 @@ class MugExpert(RobosuiteExpert):
 
     _plan_PickPlaceMug = _plan
     _plan_MugFlip = _plan
-
-    # ----- actions ----------------------------------------------------------------------------
-    def _turn_setpoint(self, goal_rot) -> None:
-        """Turn the setpoint orientation toward ``goal_rot`` (any rotation), at most
-        ``turn_speed`` rad per step."""
-        turn = (goal_rot * self._sp_rot.inv()).as_rotvec()
-        angle = float(np.linalg.norm(turn))
-        if angle > self.turn_speed:
-            turn *= self.turn_speed / angle
-        self._sp_rot = _rot().from_rotvec(turn) * self._sp_rot
-        self._sp_yaw = yaw_of(self._sp_rot.as_matrix())

@@ -1,5 +1,5 @@
 """RobosuiteEnv on ToolHang and TwoArmTransport: keys, specs, object state, two-arm actions,
-Transport's cameras, and the Transport expert's demonstrations."""
+Transport's cameras, and the Transport and ToolHang experts' demonstrations."""
 
 from __future__ import annotations
 
@@ -38,6 +38,8 @@ if "experts" not in sys.modules:
 
 #: A seed the Transport expert succeeds on (it does on seeds 0-2 at least).
 TRANSPORT_SEED = 0
+#: A seed the ToolHang expert succeeds on with either action space.
+TOOLHANG_SEED = 0
 
 
 def reset(env: RobosuiteEnv, seed: int) -> TensorDict:
@@ -132,9 +134,35 @@ def test_transport_abs_pose_holds_both_arms():
     env.close()
 
 
-def test_no_expert_for_toolhang_names_the_task():
+def test_toolhang_expert_is_made_for_toolhang():
+    expert = experts.make_expert("ToolHang", "abs_pose")
+    assert type(expert).__name__ == "ToolHangExpert"
+    assert expert.info()["task"] == "ToolHang" and expert.info()["action_space"] == "abs_pose"
     with pytest.raises(ValueError, match="ToolHang"):
-        experts.make_expert("ToolHang")
+        type(expert)("Lift")
+
+
+@pytest.mark.slow
+def test_toolhang_expert_writes_a_successful_demo(tmp_path):
+    """One scripted episode (absolute poses) assembles the frame and hangs the tool: robosuite's
+    two success flags, the last entries of the object state, end the recorded episode at 1.
+    (Delta actions: the recipe's smoke test runs the expert's first steps.)"""
+    action_space = "abs_pose"
+    from rfmp_rl.data import read_robomimic
+
+    path = tmp_path / "toolhang.hdf5"
+    info = experts.generate_demos("ToolHang", 1, action_space, seed_start=TOOLHANG_SEED,
+                                  path=str(path), max_attempts=1, verbose=False)
+    assert info["successes"] == 1 and info["seeds"] == [TOOLHANG_SEED]
+    assert info["steps"] < ROBOSUITE_MAX_STEPS["ToolHang"]
+    (episode,), _ = read_robomimic(str(path), obs_keys=list(task_low_dim_keys("ToolHang")),
+                                   with_next_obs=True)
+    assert episode["action"].shape[-1] == action_dim("ToolHang", action_space)
+    flags = episode["next_obs", "object"][:, -2:]
+    assert flags.shape[-1] == 2 and (flags[0] == 0).all() and (flags[-1] == 1).all()
+    # the commanded hand quaternions are unit
+    assert torch.allclose(episode["action"][:, 3:7].norm(dim=-1), torch.ones(len(episode)),
+                          atol=1e-5)
 
 
 @pytest.mark.slow

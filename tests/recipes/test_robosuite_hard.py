@@ -33,39 +33,18 @@ def recipe():
     yield from load_recipe("robosuite")
 
 
-class _Hold:
-    """Holds every arm still with the gripper open (the zero delta action)."""
-
-    def __init__(self, dim: int) -> None:
-        self.dim = dim
-
-    def reset(self, sim_env) -> None:
-        pass
-
-    def act(self, sim_env):
-        import numpy as np
-
-        action = np.zeros(self.dim)
-        action[6::7] = -1.0
-        return action
-
-
 def _record(task: str, action_space: str, path: Path, steps: int = 24) -> Path:
-    """Two short episodes (seeds 0 and 1, ``steps`` steps each) as a robomimic file: the
-    scripted expert's first steps for Transport, a still arm for ToolHang (a stand-in for a
-    user's own data set)."""
+    """Two short episodes (seeds 0 and 1, the scripted expert's first ``steps`` steps) as a
+    robomimic file (a stand-in for a user's own data set)."""
     if str(FOLDER) not in sys.path:
         sys.path.insert(0, str(FOLDER))
     import experts
 
     from rfmp_rl.data.robomimic import write_robomimic
-    from rfmp_rl.envs.robosuite import RobosuiteEnv, action_dim
+    from rfmp_rl.envs.robosuite import RobosuiteEnv
 
     env = RobosuiteEnv(task, [1], action_space, max_steps=steps)
-    if task == "TwoArmTransport":
-        policy = experts.make_expert(task, action_space)
-    else:
-        policy = _Hold(action_dim(task, action_space))
+    policy = experts.make_expert(task, action_space)
     episodes = [experts._run_episode(env, policy, seed, images=False)[0] for seed in (0, 1)]
     env.close()
     write_robomimic(path, episodes, env_args={"env_name": task, "env_type": 1,
@@ -112,13 +91,3 @@ def test_two_arm_pose_helpers(recipe):
         "shouldercamera0_image", "shouldercamera1_image", "robot0_eye_in_hand_image",
         "robot1_eye_in_hand_image")
     assert utils.cameras("Lift") == utils.CAMERAS
-
-
-def test_toolhang_without_data_names_the_missing_expert(recipe, tmp_path):
-    # no scripted ToolHang expert: a missing file is an error naming the task (a user's own
-    # robomimic ToolHang file trains through data.path, as above)
-    cfg = compose("robosuite", ["task=ToolHang", f"data.path={tmp_path / 'none.hdf5'}",
-                                f"out_dir={tmp_path / 'run'}", *TINY])
-    with pytest.raises(ValueError, match="ToolHang"):
-        recipe["train"].train(cfg)
-    assert not (tmp_path / "none.hdf5").exists()
