@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 .venv/bin/python recipes/pusht/train.py algo=srfmp obs=state space=sphere model.prior_sphere=wrapped threads=1 optim.lr=0.0001 train.steps=9000 train.max_minutes=22 seed=0 out_dir=runs/pusht/srfmp_sphere_wrapped_paper_seed0
