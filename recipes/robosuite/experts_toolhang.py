@@ -215,22 +215,30 @@ class ToolHangExpert(PoseExpert):
             return None
         return self._sp_pos.copy(), self._sp_rot, _GRIP_OPEN, self.speed
 
+    def _rise(self, sim_env: Any, z: float, rot, grip: float, tol: float, limit: int,
+              after: str):
+        """Straight up from where the hand is when the phase starts to the height ``z``;
+        phase ``after`` once within ``tol`` of it or after ``limit`` steps."""
+        if self.phase_steps == 0:
+            eef = self._eef(sim_env)[0]
+            self._lift_goal = np.array([eef[0], eef[1], z])
+        if self._reached_pose(sim_env, self._lift_goal, None, tol) or self.phase_steps > limit:
+            self._next(after)
+            return None
+        return self._lift_goal, rot, grip, self.speed
+
     def _plan_frame(self, sim_env: Any):
         Rotation = _rot()
         p = self.params
-        eef, eef_rot = self._eef(sim_env)
+        eef_rot = self._eef(sim_env)[1]
         frame_pos, frame_rot = self._body_pose(sim_env, "frame_root")
         if self.phase in ("frame_approach", "frame_descend", "frame_close"):
             grip = self._geom(sim_env, "frame_grip_frame")[0]
             return self._grasp(sim_env, "frame", grip, -frame_rot[:, 0], "frame_root",
                                "frame_lift", either_way=True)
         if self.phase == "frame_lift":
-            if self.phase_steps == 0:
-                self._lift_goal = np.array([eef[0], eef[1], p["carry_z"]])
-            if self._reached_pose(sim_env, self._lift_goal, None, 0.02) or self.phase_steps > 60:
-                self._next("frame_turn")
-                return None
-            return self._lift_goal, self._grasp_rot, _GRIP_CLOSE, self.speed
+            return self._rise(sim_env, p["carry_z"], self._grasp_rot, _GRIP_CLOSE, 0.02, 60,
+                              "frame_turn")
         if self.phase in ("frame_turn", "frame_insert"):
             # upright (the frame's z up), its arm (the frame's -x) along +y
             upright = np.array([[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
@@ -264,12 +272,8 @@ class ToolHangExpert(PoseExpert):
                 self._next("frame_rise")
                 return None
             return goal, self._retreat_rot, _GRIP_OPEN, self.speed
-        if self.phase_steps == 0:  # frame_rise
-            self._lift_goal = np.array([eef[0], eef[1], p["transit_z"]])
-        if self._reached_pose(sim_env, self._lift_goal, None, 0.03) or self.phase_steps > 40:
-            self._next("tool_approach")
-            return None
-        return self._lift_goal, self._retreat_rot, _GRIP_OPEN, self.speed
+        return self._rise(sim_env, p["transit_z"], self._retreat_rot, _GRIP_OPEN, 0.03, 40,
+                          "tool_approach")  # frame_rise
 
     def _tool_goal(self, sim_env: Any, turn: float, ring: np.ndarray, arm: np.ndarray,
                    up: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -294,7 +298,6 @@ class ToolHangExpert(PoseExpert):
     def _plan_tool(self, sim_env: Any):
         Rotation = _rot()
         p = self.params
-        eef = self._eef(sim_env)[0]
         if self.phase in ("tool_approach", "tool_descend", "tool_close"):
             pos, _ = self._body_pose(sim_env, "tool_root")
             handle = pos - self._site(sim_env, "tool_hole1_center")
@@ -308,12 +311,8 @@ class ToolHangExpert(PoseExpert):
         end = self._geom(sim_env, "frame_hook_frame")[0] + arm * _ARM_HALF \
             - up * _POST_HEIGHT / 2
         if self.phase == "tool_lift":
-            if self.phase_steps == 0:
-                self._lift_goal = np.array([eef[0], eef[1], end[2] + _POST_HEIGHT + 0.06])
-            if self._reached_pose(sim_env, self._lift_goal, None, 0.02) or self.phase_steps > 60:
-                self._next("tool_carry")
-                return None
-            return self._lift_goal, self._grasp_rot, _GRIP_CLOSE, self.speed
+            return self._rise(sim_env, end[2] + _POST_HEIGHT + 0.06, self._grasp_rot,
+                              _GRIP_CLOSE, 0.02, 60, "tool_carry")
         if self.phase in ("tool_carry", "tool_over", "tool_lower", "tool_turn", "tool_slide"):
             if self.phase == "tool_turn":
                 turn = min(90.0, 90.0 * self.phase_steps / p["swing_steps"])
