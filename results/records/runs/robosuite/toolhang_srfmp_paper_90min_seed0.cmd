@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=ToolHang algo=srfmp threads=1 train.max_minutes=90 'eval.nfes=[1,2,3]' seed=0 out_dir=runs/robosuite/toolhang_srfmp_paper_90min_seed0
