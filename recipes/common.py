@@ -231,6 +231,20 @@ def resolve(path: str | Path) -> Path:
     return path if path.is_absolute() else (ROOT / path).resolve()
 
 
+def check_demo_count(path: str | Path, found: int, data_cfg: DictConfig) -> None:
+    """A recipe's own demonstration file (``data.path`` not given) must hold the ``data.demos``
+    the run asks for: a file written earlier with another count would be trained on silently.
+
+    Raises:
+        ValueError: naming the file and both counts.
+    """
+    if not data_cfg.path and found != int(data_cfg.demos):
+        raise ValueError(
+            f"{path} holds {found} demonstrations and data.demos={data_cfg.demos}: pass "
+            f"data.demos={found} to train on them, or data.path=<another file> to write "
+            f"{data_cfg.demos} there (a demonstration file is never replaced)")
+
+
 def split_stores(episodes: list, source, data_cfg: DictConfig, fmt: str):
     """Train and validation `DemonstrationStore`s: the last ``data.val_episodes`` episodes are
     held out (for the validation loss); ``data.max_episodes`` trims the training ones. Each

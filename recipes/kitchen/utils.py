@@ -15,6 +15,7 @@ from recipes.common import (
     ROOT,
     TaskEval,
     check_algo,
+    check_demo_count,
     check_runtime_config,
     make_actor,
     model_config,
@@ -78,9 +79,18 @@ def data_path(cfg: DictConfig) -> Path | str:
 
 def ensure_demos(cfg: DictConfig) -> Path | str:
     """The dataset; the scripted expert writes it when ``data.source=expert`` and it is
-    missing (and ``data.generate``)."""
+    missing (and ``data.generate``). Its own dataset (no ``data.path``) must hold the
+    ``data.demos`` asked for."""
     path = data_path(cfg)
-    if cfg.data.source != "expert" or (Path(path) / "data" / "main_data.hdf5").exists():
+    if cfg.data.source != "expert":
+        return path
+    main_data = Path(path) / "data" / "main_data.hdf5"
+    if main_data.exists():
+        import h5py
+
+        with h5py.File(main_data, "r") as f:
+            count = sum(1 for name in f if name.startswith("episode_"))
+        check_demo_count(path, count, cfg.data)
         return path
     if not cfg.data.generate:
         raise FileNotFoundError(f"no kitchen dataset at {path} (data.generate=true writes it "

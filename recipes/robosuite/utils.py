@@ -17,6 +17,7 @@ from recipes import paper
 from recipes.common import (
     TaskEval,
     check_algo,
+    check_demo_count,
     check_runtime_config,
     make_actor,
     model_config,
@@ -124,10 +125,23 @@ def data_path(cfg: DictConfig) -> Path:
     return default_demo_path(cfg.task, cfg.action_space, images=cfg.obs == "image")
 
 
+def _demo_count(path: Path) -> int | None:
+    """Episodes (groups under ``data``) of a robomimic file; None without ``data``."""
+    import h5py
+
+    with h5py.File(path, "r") as f:
+        data = f.get("data")
+        return None if data is None else sum(isinstance(v, h5py.Group) for v in data.values())
+
+
 def ensure_demos(cfg: DictConfig) -> Path:
-    """The demonstration file; written by the scripted expert when missing and data.generate."""
+    """The demonstration file; written by the scripted expert when missing and data.generate.
+    The recipe's own file (no data.path) must hold the data.demos asked for."""
     path = data_path(cfg)
     if path.exists():
+        count = _demo_count(path)
+        if count is not None:  # else read_robomimic names what the file lacks
+            check_demo_count(path, count, cfg.data)
         return path
     if not cfg.data.generate:
         raise FileNotFoundError(f"no demonstration file {path} (data.generate=true writes it "

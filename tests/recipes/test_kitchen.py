@@ -94,3 +94,19 @@ def test_missing_dataset_without_generation_names_the_folder(recipe, tmp_path):
                               f"out_dir={tmp_path / 'run'}", *TINY])
     with pytest.raises(FileNotFoundError, match="none"):
         recipe["train"].train(cfg)
+
+
+def test_the_recipes_own_dataset_must_hold_the_demos_asked_for(recipe, dataset, tmp_path,
+                                                              monkeypatch):
+    # the expert's dataset at its default place (data/kitchen/kitchen-expert-v0) holds two
+    # episodes: data.demos=100 is refused, not trained on two; data.path is read as it is
+    import shutil
+
+    utils = recipe["utils"]
+    default = tmp_path / "data" / "kitchen" / "kitchen-expert-v0"
+    shutil.copytree(dataset, default)
+    monkeypatch.setattr(utils, "ROOT", tmp_path)
+    with pytest.raises(ValueError, match=f"{default} holds 2 demonstrations and data.demos=100"):
+        utils.ensure_demos(compose("kitchen", []))
+    assert utils.ensure_demos(compose("kitchen", ["data.demos=2"])) == default
+    assert utils.ensure_demos(compose("kitchen", [f"data.path={dataset}"])) == dataset

@@ -46,3 +46,25 @@ def test_experts_refuse_to_replace_an_existing_file(utils, tmp_path):
     with pytest.raises(SystemExit, match=f"{demos} exists; give another --out, or --overwrite"):
         experts.main(["--task", "Lift", "--n", "1", "--out", str(demos)])
     assert demos.read_bytes() == b"a user's demonstrations"
+
+
+def test_the_recipes_own_file_must_hold_the_demos_asked_for(utils, tmp_path, monkeypatch):
+    # a file written earlier with another data.demos is not trained on silently; data.path
+    # (a user's file) is read whatever it holds
+    import experts
+    import torch
+    from tensordict import TensorDict
+
+    from rfmp_rl.data import write_robomimic
+
+    path = tmp_path / "lift_delta.hdf5"
+    episode = TensorDict({"obs": {"robot0_eef_pos": torch.zeros(3, 3)}, "action": torch.zeros(3, 7),
+                          "reward": torch.zeros(3), "done": torch.zeros(3)}, [3])
+    write_robomimic(path, [episode] * 3, env_args={"env_name": "Lift", "env_type": 1,
+                                                   "env_kwargs": {}})
+    monkeypatch.setattr(experts, "default_demo_path", lambda *args, **kwargs: path)
+    with pytest.raises(ValueError, match=f"{path} holds 3 demonstrations and data.demos=200: "
+                                         "pass data.demos=3"):
+        utils.ensure_demos(compose("robosuite", ["task=Lift"]))
+    assert utils.ensure_demos(compose("robosuite", ["task=Lift", "data.demos=3"])) == path
+    assert utils.ensure_demos(compose("robosuite", ["task=Lift", f"data.path={path}"])) == path
