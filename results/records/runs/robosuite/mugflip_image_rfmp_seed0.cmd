@@ -1,0 +1,1 @@
+OMP_NUM_THREADS=1 MUJOCO_GL=egl .venv/bin/python recipes/robosuite/train.py task=MugFlip action_space=abs_pose algo=rfmp obs=image precision=bf16 threads=1 data.demos=100 optim.lr=0.001 optim.warmup_steps=50 train.batch_size=64 train.val_every=100 train.val_batches=2 train.max_minutes=35 eval.seeds=10 'eval.nfes=[1,2,3,5,10]' seed=0 out_dir=runs/robosuite/mugflip_image_rfmp_seed0
