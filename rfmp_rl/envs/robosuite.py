@@ -438,9 +438,11 @@ def _fresh_object_state(sim_env: Any) -> np.ndarray:
 
     robosuite evaluates relative sensors before the absolute ones they read in the same step
     (so they lag one step, and are zero right after a reset); two passes over the sensors with
-    a fresh cache give every entry at the current state.
+    a fresh cache give every entry at the current state. Camera sensors (modality ``image``)
+    are left out: no object entry reads them, and each would render its camera again.
     """
-    observables = [o for o in sim_env._observables.values() if o.is_enabled()]
+    observables = [o for o in sim_env._observables.values()
+                   if o.is_enabled() and o.modality != "image"]
     cache: dict[str, Any] = {}
     for _ in range(2):
         for obs in observables:

@@ -117,6 +117,12 @@ def test_transport_cameras():
         image = td[f"{cam}_image"]
         assert image.shape == (1, 3, 32, 32) and image.dtype == torch.uint8
         assert image.float().std() > 1.0  # a rendered scene, not a blank frame
+    # A step renders each camera once: the object state's sensor passes render none.
+    sim = env.sims[0].sim
+    rendered, render = [], sim.render
+    sim.render = lambda **kw: rendered.append(kw["camera_name"]) or render(**kw)
+    td = env.step(td.set("action", torch.zeros(1, 14)))["next"]
+    assert sorted(rendered) == sorted(task_cameras("TwoArmTransport"))
     env.close()
 
 

@@ -5,7 +5,6 @@ and gap T_o (the first observation repeated at the episode's start)."""
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
@@ -98,21 +97,17 @@ class _Recorder:
         return action
 
 
-def _export(checkpoint: Path, out: Path) -> None:
-    """``export/to_onnx.py --checkpoint ... --out ...``: no flag for T_o (the checkpoint has it)."""
-    spec = importlib.util.spec_from_file_location("to_onnx", ROOT / "export" / "to_onnx.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    assert module.main(["--checkpoint", str(checkpoint), "--out", str(out)]) == 0
-
-
-def test_t_o_4_pusht_policy_acts_the_same_in_pytorch_and_through_the_onnx_controller(tmp_path):
+def test_t_o_4_pusht_policy_acts_the_same_in_pytorch_and_through_the_onnx_controller(
+    tmp_path, to_onnx_cli
+):
     from rfmp_deploy import Controller, Policy
 
     policy = _train(DemonstrationStore.from_episodes(_episodes()))
     checkpoint = save_checkpoint(tmp_path / "ckpt.pt", policy, solver=policy.solver,
                                  control_rate_hz=10.0)
-    _export(checkpoint, tmp_path / "policy.onnx")
+    # export/to_onnx.py with no flag for T_o (the checkpoint has it)
+    export = to_onnx_cli("--checkpoint", checkpoint, "--out", tmp_path / "policy.onnx")
+    assert export.returncode == 0, export.stderr
 
     controller = Controller(Policy(tmp_path / "policy.onnx", intra_op_threads=1),
                             deterministic=True)

@@ -3,7 +3,6 @@ float32 PyTorch is measured and recorded, and the deploy controller runs the fil
 
 from __future__ import annotations
 
-import subprocess
 import sys
 from pathlib import Path
 
@@ -167,7 +166,7 @@ def test_image_policy_exports_in_fp16(tmp_path):
     assert all(p.dtype == torch.float32 for p in model.parameters())
 
 
-def test_cli_exports_int8_with_store_calibration(tmp_path, make_tiny_model):
+def test_cli_exports_int8_with_store_calibration(tmp_path, make_tiny_model, to_onnx_cli):
     model = pose_policy(make_tiny_model)
     ckpt = save_checkpoint(tmp_path / "ckpt.pt", model, control_rate_hz=10.0)
     gen = torch.Generator().manual_seed(1)
@@ -178,19 +177,16 @@ def test_cli_exports_int8_with_store_calibration(tmp_path, make_tiny_model):
     store = DemonstrationStore.from_episodes(episodes)
     store.save(tmp_path / "store")
     out = tmp_path / "policy_int8.onnx"
-    cmd = [sys.executable, str(ROOT / "export" / "to_onnx.py"), "--checkpoint", str(ckpt),
-           "--nfe", "1", "--precision", "int8", "--calibration", str(tmp_path / "store"),
-           "--calibration-windows", "40", "--out", str(out)]
-    result = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    args = ["--checkpoint", ckpt, "--nfe", "1", "--precision", "int8", "--calibration",
+            tmp_path / "store", "--calibration-windows", "40", "--out", out]
+    result = to_onnx_cli(*args)
     assert result.returncode == 0, result.stderr
     assert "(int8," in result.stdout and "parity against float32 PyTorch" in result.stdout
     meta = metadata(out)
     assert (meta["precision"], meta["calibration"]) == ("int8", "given inputs (40 windows)")
     # --calibration without int8 is a usage error; a missing store names itself.
-    usage = subprocess.run(cmd[:-6] + ["--precision", "fp16", "--calibration", "s"],
-                           capture_output=True, text=True, timeout=300)
+    usage = to_onnx_cli(*args[:-6], "--precision", "fp16", "--calibration", "s")
     assert usage.returncode == 2 and "--calibration applies to --precision int8" in usage.stderr
-    missing = subprocess.run(cmd[:8] + ["--calibration", str(tmp_path / "nope")],
-                             capture_output=True, text=True, timeout=300)
+    missing = to_onnx_cli(*args[:6], "--calibration", tmp_path / "nope")
     assert missing.returncode == 1 and "nope" in missing.stderr
     assert "Traceback" not in missing.stderr

@@ -100,7 +100,8 @@ def test_parity_failure_is_reported(tmp_path, make_tiny_model):
     assert (tmp_path / "d.onnx").exists()  # written before the check, for inspection
 
 
-def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
+def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model, to_onnx_cli):
+    """The script as a user runs it (a subprocess); its refusals in-process."""
     model = fitted(make_tiny_model("rfmp", "S2", horizon=4))
     ckpt = save_checkpoint(tmp_path / "ckpt.pt", model, control_rate_hz=10.0)
     out = tmp_path / "policy.onnx"
@@ -127,23 +128,8 @@ def test_cli_exports_a_checkpoint_and_prints_parity(tmp_path, make_tiny_model):
     assert "max |onnxruntime - torch|" in result.stdout and out.exists()
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
     assert (meta["method"], meta["t_end"], meta["nfe"]) == ("midpoint", "1.2", "2")
-    bad = subprocess.run(
-        [
-            sys.executable,
-            str(ROOT / "export" / "to_onnx.py"),
-            "--checkpoint",
-            str(ckpt),
-            "--nfe",
-            "3",
-            "--method",
-            "rk4",
-            "--out",
-            str(tmp_path / "x.onnx"),
-        ],
-        capture_output=True,
-        text=True,
-        timeout=300,
-    )
+    bad = to_onnx_cli("--checkpoint", ckpt, "--nfe", "3", "--method", "rk4",
+                      "--out", tmp_path / "x.onnx")
     assert bad.returncode != 0 and "NFE=3" in bad.stderr
 
 
@@ -177,31 +163,28 @@ def test_the_control_rate_is_an_export_argument(tmp_path, make_tiny_model):
     assert onnx_metadata(InferenceGraph(model, nfe=1), 12.5)["control_rate_hz"] == "12.5"
 
 
-def _cli(*args):
-    return subprocess.run([sys.executable, str(ROOT / "export" / "to_onnx.py"), *map(str, args)],
-                          capture_output=True, text=True, timeout=300)
-
-
 def test_cli_rate_defaults_to_the_checkpoint_and_asks_for_one_when_it_has_none(
-    tmp_path, make_tiny_model
+    tmp_path, make_tiny_model, to_onnx_cli
 ):
     model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
     with_rate = save_checkpoint(tmp_path / "a.pt", model, control_rate_hz=20.0)
-    result = _cli("--checkpoint", with_rate, "--out", tmp_path / "a.onnx")
+    result = to_onnx_cli("--checkpoint", with_rate, "--out", tmp_path / "a.onnx")
     assert result.returncode == 0, result.stderr
     assert {p.key: p.value for p in onnx.load(str(tmp_path / "a.onnx")).metadata_props}[
         "control_rate_hz"] == "20.0"
-    result = _cli("--checkpoint", with_rate, "--rate", "50", "--out", tmp_path / "b.onnx")
+    result = to_onnx_cli("--checkpoint", with_rate, "--rate", "50", "--out", tmp_path / "b.onnx")
     assert result.returncode == 0, result.stderr
     assert {p.key: p.value for p in onnx.load(str(tmp_path / "b.onnx")).metadata_props}[
         "control_rate_hz"] == "50.0"
     without = save_checkpoint(tmp_path / "c.pt", model)
-    result = _cli("--checkpoint", without, "--out", tmp_path / "c.onnx")
+    result = to_onnx_cli("--checkpoint", without, "--out", tmp_path / "c.onnx")
     assert result.returncode == 1 and "--rate" in result.stderr
     assert "Traceback" not in result.stderr and not (tmp_path / "c.onnx").exists()
 
 
-def test_cli_exports_a_checkpoint_written_before_the_loss_config(tmp_path, make_tiny_model):
+def test_cli_exports_a_checkpoint_written_before_the_loss_config(
+    tmp_path, make_tiny_model, to_onnx_cli
+):
     """An old checkpoint: training options and the rate inside its model config."""
     model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
     path = save_checkpoint(tmp_path / "new.pt", model)
@@ -210,7 +193,7 @@ def test_cli_exports_a_checkpoint_written_before_the_loss_config(tmp_path, make_
                                    lambda_tau=2.5, control_rate_hz=10.0)
     del payload["loss"], payload["control_rate_hz"]
     torch.save(payload, tmp_path / "old.pt")
-    result = _cli("--checkpoint", tmp_path / "old.pt", "--out", tmp_path / "old.onnx")
+    result = to_onnx_cli("--checkpoint", tmp_path / "old.pt", "--out", tmp_path / "old.onnx")
     assert result.returncode == 0, result.stderr
     meta = {p.key: p.value for p in onnx.load(str(tmp_path / "old.onnx")).metadata_props}
     assert (meta["control_rate_hz"], meta["algorithm"]) == ("10.0", "srfmp")

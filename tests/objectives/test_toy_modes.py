@@ -15,10 +15,15 @@ from toy_modes import CASES, evaluate, train  # noqa: E402
 pytestmark = pytest.mark.slow
 
 
-@pytest.mark.parametrize("case", ["srfmp-S2", "rfmp-S2", "ddim-S2"])
+#: Training steps per case at batch 128 (seed 0): the flows reach a mean distance of about 0.008
+#: in 400 steps, DDIM about 0.012-0.022 (seeds 0, 1) in 600; at 300 steps DDIM misses the bar.
+STEPS = {"srfmp-S2": 400, "rfmp-S2": 400, "ddim-S2": 600}
+
+
+@pytest.mark.parametrize("case", list(STEPS))
 def test_two_mode_sphere_chunks_are_reproduced(case):
     algorithm, manifold, horizon, nfe = CASES[case]
-    model, modes, seconds = train(algorithm, manifold, horizon, steps=800, batch=128)
+    model, modes, seconds = train(algorithm, manifold, horizon, steps=STEPS[case], batch=128)
     result = evaluate(model, modes, nfe)
     print(case, f"{seconds:.0f} s", result)
     assert result["mean_dist"] <= 0.05

@@ -2,10 +2,6 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
-from pathlib import Path
-
 import pytest
 import torch
 from tensordict import TensorDict
@@ -15,8 +11,6 @@ from rfmp_rl.checkpoint import read_checkpoint, save_checkpoint
 from rfmp_rl.modules import FlowPolicy
 from rfmp_rl.onnx_export import InferenceGraph, onnx_metadata
 from rfmp_rl.solvers import SolverConfig
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 def fitted(model):
@@ -82,14 +76,13 @@ def test_checkpoints_store_the_solver_and_policies_start_from_it(tmp_path, make_
         1, 1.0, "euler", "uniform")
 
 
-def test_exporter_defaults_to_the_checkpoint_solver(tmp_path, make_tiny_model):
+def test_exporter_defaults_to_the_checkpoint_solver(tmp_path, make_tiny_model, to_onnx_cli):
     onnx = pytest.importorskip("onnx")
     model = fitted(make_tiny_model("srfmp", "S2", horizon=4))
     ckpt = save_checkpoint(tmp_path / "c.pt", model,
                            solver=SolverConfig(nfe=2, t_end=1.4, method="midpoint"),
                            control_rate_hz=10.0)
-    result = subprocess.run([sys.executable, str(ROOT / "export" / "to_onnx.py"), "--checkpoint",
-                             str(ckpt)], capture_output=True, text=True, timeout=300)
+    result = to_onnx_cli("--checkpoint", ckpt)
     assert result.returncode == 0, result.stderr
     out = tmp_path / "policy_srfmp_nfe2.onnx"
     meta = {p.key: p.value for p in onnx.load(str(out)).metadata_props}
